@@ -1,0 +1,59 @@
+# spherepose: one entry point. The top level delegates to the parts and stops
+# at the first failure. `make demo` and `make test` install what is missing.
+.DELETE_ON_ERROR:
+.PHONY: all deps textures dataset firmware stage host build test demo bench study clean help
+
+VENV    := .venv
+PY      := $(VENV)/bin/python
+BUILD   := build
+TEXTURE ?= Texture_3_color
+
+help:
+	@echo "make demo     install what is missing, build everything, run the simulated rig experiment"
+	@echo "make test     install what is missing, build everything, run every test"
+	@echo "make deps     Debian packages + .venv from requirements.txt (safe to rerun)"
+	@echo "make textures the six paper textures into $(BUILD)/textures"
+	@echo "make dataset  the P1 dataset of TEXTURE=$(TEXTURE) into $(BUILD)/dataset/$(TEXTURE)"
+	@echo "make firmware | stage | host    build one part"
+	@echo "make bench    benchmarks (docs/benchmarks.md)"
+	@echo "make study    the six-texture training study (PROFILE=quick|p1)"
+	@echo "make clean    remove build outputs"
+
+deps:
+	@scripts/deps.sh
+
+textures: deps
+	$(VENV)/bin/textures generate --out $(BUILD)/textures
+
+dataset: textures
+	$(VENV)/bin/sim dataset --texture $(BUILD)/textures/$(TEXTURE).png --out $(BUILD)/dataset/$(TEXTURE)
+
+firmware: deps
+	$(MAKE) -C firmware
+
+stage: deps
+	$(MAKE) -C sim/stage
+
+host: deps
+	$(MAKE) -C host
+
+build: firmware stage host
+
+test: deps build
+	@tests/run_all.sh
+
+demo: deps build
+	@scripts/demo.sh
+
+bench: deps build
+	@bench/run_all.sh
+
+PROFILE ?= quick
+study: deps
+	$(VENV)/bin/posetrain study --profile $(PROFILE) --out $(BUILD)/study-$(PROFILE)
+
+clean:
+	-$(MAKE) -C firmware clean
+	-$(MAKE) -C sim/stage clean
+	-$(MAKE) -C host clean
+	rm -rf $(BUILD)

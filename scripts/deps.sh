@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# Install what spherepose needs and is missing: Debian packages, then a .venv
+# from the pinned requirements. Safe to rerun: each step checks before it acts.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+DEBIAN_PACKAGES=(
+  build-essential pkg-config clang libclang-rt-14-dev valgrind
+  gcc-avr avr-libc binutils-avr avrdude simavr libsimavr-dev libelf-dev
+  libopencv-dev libserialport-dev libcmocka-dev
+  libosmesa6 libegl1 libgl1
+)
+
+missing=()
+for p in "${DEBIAN_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "deps: installing Debian packages: ${missing[*]}"
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q "${missing[@]}"
+fi
+
+PY=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+  echo "deps: creating .venv"
+  "$PY" -m venv .venv
+fi
+# Reinstall only when requirements.txt or pyproject.toml changed since the last install.
+stamp=.venv/.spherepose-installed
+if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "deps: installing Python packages from requirements.txt (first time: several GB, mostly PyTorch)"
+  .venv/bin/pip install -q --disable-pip-version-check -r requirements.txt
+  .venv/bin/pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+  touch "$stamp"
+fi
+
+# ONNX Runtime C API: library from the onnxruntime wheel, headers from Debian trixie.
+if [ -x host/scripts/fetch_ort.sh ]; then
+  host/scripts/fetch_ort.sh
+fi
+echo "deps: ok"
