@@ -1,0 +1,92 @@
+"""Datasets: labels from names, the cache, preprocessing parity, and bad inputs."""
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from sim.names import BadName
+from training import preprocess as pp
+from training.cli import main
+from training.data import CACHE_PREFIX, DatasetError, PoseSet, prepare_batch
+
+
+
+def _write(d, name, seed=0):
+    cv2.imwrite(str(d / name), _frame(seed))
+
+
+@pytest.fixture(autouse=True)
+def _use_frame(frame):
+    global _frame
+    _frame = frame
+
+
+def test_labels_cache_and_preprocessing_parity(tmp_path):
+    names = ["1_2_3.png", "-4.5_0_30.png", "7.125_-3.25_-14.5.png"]
+    for i, n in enumerate(names):
+        _write(tmp_path, n, i)
+    (tmp_path / "dataset.json").write_text("{}")  # other files are ignored
+    p = pp.params({"size": 64})
+    ds = PoseSet(tmp_path, p, progress=False)
+    by_name = dict(zip(ds.names, ds.labels.tolist()))
+    assert by_name["-4.5_0_30.png"] == [-4.5, 0.0, 30.0]
+    assert by_name["7.125_-3.25_-14.5.png"] == [7.125, -3.25, -14.5]
+    # the batch path (cached uint8 crops, torch normalise) equals preprocess_file exactly
+    x = prepare_batch(ds.images, p).numpy()
+    for i, n in enumerate(ds.names):
+        ref = pp.preprocess_file(tmp_path / n, p)
+        assert np.abs(x[i] - ref).max() < 1e-6
+    caches = list(tmp_path.glob(CACHE_PREFIX + "*.npz"))
+    assert len(caches) == 1
+    # unchanged folder: served from the cache; a new frame or new params: rebuilt
+    assert torch.equal(PoseSet(tmp_path, p, progress=False).images, ds.images)
+    _write(tmp_path, "0_0_0.png", 9)
+    assert len(PoseSet(tmp_path, p, progress=False)) == 4
+    assert len(PoseSet(tmp_path, pp.params({"size": 48}), progress=False)) == 4
+    assert len(list(tmp_path.glob(CACHE_PREFIX + "*.npz"))) == 1
+
+
+@pytest.mark.parametrize("bad", ["pose.png", "1_2.png", "01_2_3.png", "1_2_3.1234.png", "+1_2_3.png"])
+def test_malformed_name_names_the_file(tmp_path, bad):
+    _write(tmp_path, "1_2_3.png")
+    _write(tmp_path, bad)
+    with pytest.raises(BadName, match=bad.replace("+", r"\+").replace(".", r"\.")):
+        PoseSet(tmp_path, pp.params(), progress=False)
+
+
+def test_empty_split(tmp_path):
+    with pytest.raises(DatasetError, match="empty split"):
+        PoseSet(tmp_path, pp.params(), progress=False)
+    with pytest.raises(DatasetError, match="not a folder"):
+        PoseSet(tmp_path / "missing", pp.params(), progress=False)
+
+
+def test_corrupt_png_and_no_sphere(tmp_path):
+    _write(tmp_path, "1_2_3.png")
+    (tmp_path / "4_5_6.png").write_bytes(b"\x89PNG\r\n\x1a\nnot really")
+    with pytest.raises(DatasetError, match=r"4_5_6\.png: cannot decode"):
+        PoseSet(tmp_path, pp.params(), progress=False)
+    (tmp_path / "4_5_6.png").unlink()
+    cv2.imwrite(str(tmp_path / "7_8_9.png"), np.full((100, 120, 3), 64, np.uint8))
+    with pytest.raises(DatasetError, match=r"7_8_9\.png: no sphere found"):
+        PoseSet(tmp_path, pp.params(), progress=False)
+
+
+def test_cli_reports_bad_input_and_choices(tmp_path, capsys):
+    (tmp_path / "train").mkdir()
+    (tmp_path / "val").mkdir()
+    _write(tmp_path / "train", "oops.png")
+    assert main(["train", "--data", str(tmp_path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    assert "oops.png" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["train", "--data", str(tmp_path), "--out", "o", "--arch", "resnet"])
+    assert "mobilenet_v3_small" in capsys.readouterr().err
+
+
+def test_augmentation_shapes_and_range():
+    g = torch.Generator().manual_seed(0)
+    imgs = torch.randint(0, 256, (4, 3, 32, 32), dtype=torch.uint8)
+    p = pp.params({"size": 32})
+    x = prepare_batch(imgs, p, {"photometric": 1.0, "geometric": True}, g)
+    assert x.shape == (4, 3, 32, 32) and torch.isfinite(x).all()
+    assert not torch.allclose(x, prepare_batch(imgs, p))

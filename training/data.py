@@ -1,0 +1,182 @@
+"""Pose datasets from file names only, preprocessed once and cached.
+
+A split folder holds `<x>_<y>_<z>.png` frames (sim.names is the only parser);
+other PNG names are an error that names the file, other file types are
+ignored. Steps 1-7 of sphere-crop-v1 (training/preprocess.py) run once per
+frame; the uint8 crops are cached in the folder as
+`.spherepose-cache-<key>.npz`, where key hashes the preprocessing parameters
+and every frame's name, size and mtime, so a change to either rebuilds it.
+Step 8 (normalise) runs on batches in torch, with the same float32 arithmetic,
+after optional augmentation of the uint8 crops.
+"""
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from sim.names import parse_name
+
+from . import preprocess as pp
+
+CACHE_PREFIX = ".spherepose-cache-"
+
+
+class DatasetError(ValueError):
+    """A split folder that cannot be used; the message names the folder or file."""
+
+
+def list_frames(root):
+    """Sorted PNG paths and their [N, 3] labels (degrees) from a split folder."""
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: not a folder")
+    paths = sorted(p for p in root.iterdir() if p.suffix.lower() == ".png" and p.is_file())
+    if not paths:
+        raise DatasetError(f"{root}: empty split, no <x>_<y>_<z>.png frames")
+    labels = np.array([parse_name(p) for p in paths], dtype=np.float64)
+    return paths, labels
+
+
+def _cache_key(paths, params):
+    h = hashlib.sha1(json.dumps(params, sort_keys=True).encode())
+    for p in paths:
+        st = p.stat()
+        h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    return h.hexdigest()[:16]
+
+
+def _crop_file(path, params):
+    frame = pp.cv2.imread(str(path), pp.cv2.IMREAD_UNCHANGED)
+    if frame is None:
+        raise DatasetError(f"{path}: cannot decode image (missing, corrupt or not an image)")
+    if frame.dtype != np.uint8:
+        raise DatasetError(f"{path}: expected 8-bit pixels, got {frame.dtype}")
+    try:
+        cx, cy, r, bg = pp.find_sphere(frame, params)
+    except pp.NoSphere as e:
+        raise DatasetError(f"{path}: {e}") from None
+    return pp.crop(frame, cx, cy, r, bg, params)
+
+
+def load_crops(root, params, cache=True, progress=True):
+    """(crops uint8 [N, S, S, 3] RGB, labels [N, 3] float64, names) for a split folder."""
+    paths, labels = list_frames(root)
+    root = Path(root)
+    key = _cache_key(paths, params)
+    cpath = root / f"{CACHE_PREFIX}{key}.npz"
+    if cache and cpath.exists():
+        try:
+            with np.load(cpath) as z:
+                crops = z["crops"]
+            if len(crops) == len(paths):
+                return crops, labels, [p.name for p in paths]
+        except Exception:
+            pass  # unreadable cache: rebuild it
+    it = paths
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(paths, desc=f"preprocess {root.name}", unit="frame", leave=False)
+    crops = np.stack([_crop_file(p, params)[:, :, ::-1] for p in it])  # BGR -> RGB
+    if cache:
+        for old in root.glob(f"{CACHE_PREFIX}*.npz"):
+            old.unlink(missing_ok=True)
+        tmp = root / f"{CACHE_PREFIX}{key}.tmp.npz"
+        np.savez(tmp, crops=crops)
+        os.replace(tmp, cpath)  # atomic: a killed run never leaves half a cache
+    return crops, labels, [p.name for p in paths]
+
+
+class PoseSet:
+    """An in-memory split: uint8 crops [N, 3, S, S] (RGB) and labels [N, 3] (float32, degrees)."""
+
+    def __init__(self, root, params, cache=True, progress=True):
+        crops, labels, names = load_crops(root, params, cache, progress)
+        self.root, self.params, self.names = Path(root), params, names
+        self.images = torch.from_numpy(np.ascontiguousarray(crops.transpose(0, 3, 1, 2)))
+        self.labels = torch.from_numpy(labels.astype(np.float32))
+
+    def __len__(self):
+        return len(self.labels)
+
+    def batches(self, batch_size, shuffle=False, generator=None, drop_last=False):
+        """Yield (uint8 images, labels) batches."""
+        n = len(self)
+        order = torch.randperm(n, generator=generator) if shuffle else torch.arange(n)
+        stop = n - n % batch_size if drop_last and n >= batch_size else n
+        for i in range(0, stop, batch_size):
+            idx = order[i:i + batch_size]
+            yield self.images[idx], self.labels[idx]
+
+
+def normalise(images_u8_or_float, params):
+    """Step 8 in torch: uint8 RGB (or float in [0, 1]) [N, 3, S, S] -> normalised float32."""
+    x = images_u8_or_float
+    if x.dtype == torch.uint8:
+        x = x.to(torch.float32) / 255.0
+    mean = torch.tensor(params["mean"], dtype=torch.float32, device=x.device).view(1, 3, 1, 1)
+    std = torch.tensor(params["std"], dtype=torch.float32, device=x.device).view(1, 3, 1, 1)
+    return (x - mean) / std
+
+
+# ---------------------------------------------------------------- augmentation
+
+def _gaussian_blur(x, sigma):
+    """Per-sample Gaussian blur, sigma [N] in pixels (0 = none), 5-tap separable kernel."""
+    t = torch.arange(-2, 3, dtype=x.dtype, device=x.device).view(1, 5)
+    s = sigma.clamp(min=1e-3).view(-1, 1)
+    k = torch.exp(-0.5 * (t / s) ** 2)
+    k = k / k.sum(1, keepdim=True)  # [N, 5]
+    n, c, h, w = x.shape
+    y = x.reshape(1, n * c, h, w)
+    kh = k.repeat_interleave(c, 0).view(n * c, 1, 1, 5)
+    y = F.conv2d(F.pad(y, (2, 2, 0, 0), mode="replicate"), kh, groups=n * c)
+    y = F.conv2d(F.pad(y, (0, 0, 2, 2), mode="replicate"), kh.transpose(2, 3), groups=n * c)
+    return y.view(n, c, h, w)
+
+
+def photometric(x, g, strength=1.0):
+    """Random light: brightness, contrast, per-channel gain, gamma, blur, noise.
+    x float [N, 3, S, S] in [0, 1]; g a torch.Generator; returns the same shape in [0, 1]."""
+    n = x.shape[0]
+    u = lambda lo, hi, *shape: lo + (hi - lo) * torch.rand(n, *shape, generator=g)
+    s = strength
+    x = x * u(1 - 0.3 * s, 1 + 0.3 * s, 1, 1, 1) * u(1 - 0.08 * s, 1 + 0.08 * s, 3, 1, 1)
+    m = x.mean((1, 2, 3), keepdim=True)
+    x = ((x - m) * u(1 - 0.3 * s, 1 + 0.3 * s, 1, 1, 1) + m).clamp(0, 1)
+    x = x ** torch.exp(u(-0.25 * s, 0.25 * s, 1, 1, 1))
+    blur = torch.where(torch.rand(n, generator=g) < 0.5, u(0.3, 0.3 + 1.0 * s), torch.zeros(n))
+    x = torch.where((blur > 0).view(-1, 1, 1, 1), _gaussian_blur(x, blur), x)
+    x = x + torch.randn(x.shape, generator=g) * u(0, 0.03 * s, 1, 1, 1)
+    return x.clamp(0, 1)
+
+
+def geometric(x, g, shift=0.04, scale=0.04):
+    """Small random crop jitter (translation, scale), as an imperfect sphere detection
+    would give; no in-plane rotation (that would change the Z angle)."""
+    n = x.shape[0]
+    u = lambda lo, hi: lo + (hi - lo) * torch.rand(n, generator=g)
+    sc = u(1 - scale, 1 + scale)
+    theta = torch.zeros(n, 2, 3)
+    theta[:, 0, 0] = sc
+    theta[:, 1, 1] = sc
+    theta[:, 0, 2] = u(-2 * shift, 2 * shift)
+    theta[:, 1, 2] = u(-2 * shift, 2 * shift)
+    grid = F.affine_grid(theta, list(x.shape), align_corners=False)
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+def prepare_batch(images_u8, params, augment=None, g=None):
+    """uint8 batch -> normalised float32 network input, optionally augmented.
+    augment: None or a dict {'photometric': strength (0 = off), 'geometric': bool}."""
+    if not augment or not (augment.get("photometric") or augment.get("geometric")):
+        return normalise(images_u8, params)
+    x = images_u8.to(torch.float32) / 255.0
+    if augment.get("geometric"):
+        x = geometric(x, g)
+    if augment.get("photometric"):
+        x = photometric(x, g, augment["photometric"])
+    return normalise(x, params)

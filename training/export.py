@@ -1,0 +1,97 @@
+"""ONNX export under the model contract (docs/interfaces.md), checked against PyTorch.
+
+Input `image` float32 [N, 3, S, S]; output `euler_deg` [N, 3] (+ `rotmat`
+[N, 3, 3] for the 6-D head); metadata_props spherepose.* as the contract
+lists. After writing, Python onnxruntime runs the file on the same inputs as
+PyTorch; a difference above `tol_deg` deletes the file and raises.
+"""
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+
+from .models import ExportWrapper, output_names
+
+EULER = "R = Rz(z) Ry(y) Rx(x), degrees, body to world"
+OPSET = 17
+
+
+class ExportMismatch(RuntimeError):
+    """ONNX Runtime and PyTorch disagree beyond the tolerance."""
+
+
+def metadata(config, metrics):
+    """The contract's metadata_props as a dict of strings."""
+    return {
+        "spherepose.preprocess": json.dumps(config["preprocess"], sort_keys=True),
+        "spherepose.euler": EULER,
+        "spherepose.ranges": json.dumps(config.get("ranges", {"x": [-30, 30], "y": [-30, 30], "z": [-30, 30]})),
+        "spherepose.texture": str(config.get("texture") or "unknown"),
+        "spherepose.head": config["head"],
+        "spherepose.arch": config["arch"],
+        "spherepose.metrics": json.dumps(metrics or {}, sort_keys=True),
+    }
+
+
+def read_metadata(path):
+    """metadata_props of an ONNX file as a dict."""
+    m = onnx.load(str(path), load_external_data=False)
+    return {p.key: p.value for p in m.metadata_props}
+
+
+def run_onnx(path, images, threads=None):
+    """Run an ONNX file on a float32 [N, 3, S, S] array; returns {output name: array}."""
+    import onnxruntime as ort
+    so = ort.SessionOptions()
+    if threads:
+        so.intra_op_num_threads = threads
+    sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+    names = [o.name for o in sess.get_outputs()]
+    return dict(zip(names, sess.run(names, {"image": np.ascontiguousarray(images, np.float32)})))
+
+
+def export_onnx(model, config, path, metrics=None, check_inputs=None, tol_deg=1e-4):
+    """Write `model` (PoseNet, any device) to `path` and check it with onnxruntime.
+
+    check_inputs: float32 [N, 3, S, S] preprocessed images (real frames are the better
+    check); random inputs are used when None. Returns the max |difference| in degrees."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    size = config["preprocess"]["size"]
+    model = model.to("cpu").eval()
+    wrapper = ExportWrapper(model).eval()
+    names = output_names(config["head"])
+    dummy = torch.zeros(1, 3, size, size)
+    tmp = path.with_name(path.name + ".tmp")
+    dyn = {"image": {0: "N"}, **{n: {0: "N"} for n in names}}
+    torch.onnx.export(wrapper, (dummy,), str(tmp), input_names=["image"], output_names=names,
+                      dynamic_axes=dyn, opset_version=OPSET, dynamo=False, do_constant_folding=True)
+    m = onnx.load(str(tmp))
+    for k, v in metadata(config, metrics).items():
+        p = m.metadata_props.add()
+        p.key, p.value = k, v
+    m.doc_string = f"spherepose pose regressor ({config['arch']}, {config['head']} head)"
+    onnx.checker.check_model(m)
+    onnx.save(m, str(tmp))
+    try:
+        if check_inputs is None:
+            g = torch.Generator().manual_seed(0)
+            check_inputs = torch.randn(4, 3, size, size, generator=g).numpy()
+        x = np.asarray(check_inputs, np.float32)
+        with torch.no_grad():
+            ref = model(torch.from_numpy(x))
+        got = run_onnx(tmp, x)
+        diff = float(np.abs(got["euler_deg"] - ref["euler_deg"].numpy()).max())
+        if "rotmat" in ref:
+            diff = max(diff, float(np.abs(got["rotmat"] - ref["rotmat"].numpy()).max()) * 57.29577951308232)
+        if not diff <= tol_deg:
+            raise ExportMismatch(f"{path}: onnxruntime differs from PyTorch by {diff:.3g} deg "
+                                 f"(> {tol_deg:g}); file not written")
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, path)
+    return diff
