@@ -1,0 +1,3 @@
+stagectl: stagectl.c stage.h stage_proto.h
+stage.h:
+stage_proto.h:
