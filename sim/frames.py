@@ -1,0 +1,67 @@
+"""PNG encoding and atomic file writes for rendered frames.
+
+Encoding is deterministic (same pixels -> same bytes): OpenCV's libpng with a
+fixed zlib level and a fixed row filter, and no time stamp or text chunk.
+"""
+import os
+import tempfile
+
+import cv2
+
+# zlib level 1 with the 'up' row filter: 2-3x faster than libpng's adaptive
+# filters at level 3 and within 10 % of their size on sphere frames.
+PNG_LEVEL = 1
+PNG_FILTER = "up"
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
+
+TMP_PREFIX = ".tmp-"
+
+# The process umask, read once (os.umask can only be read by setting it).
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
+def encode_png(rgb):
+    """PNG bytes of an RGB uint8 image [H, W, 3]."""
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), _PNG_PARAMS)
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def write_atomic(path, data):
+    """Write bytes to `path` through a temporary file in the same folder, then rename.
+
+    A reader (or a resumed run) sees the whole file or none of it, never half of it.
+    """
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=".part", dir=folder)
+    try:
+        # mkstemp makes the file private (0600); give it the usual permissions.
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def remove_stale_temporaries(folder):
+    """Delete temporary files a killed run left in `folder`; returns how many."""
+    n = 0
+    try:
+        names = os.listdir(folder)
+    except FileNotFoundError:
+        return 0
+    for name in names:
+        if name.startswith(TMP_PREFIX) and name.endswith(".part"):
+            try:
+                os.unlink(os.path.join(folder, name))
+                n += 1
+            except OSError:
+                pass
+    return n
