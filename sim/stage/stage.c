@@ -1,0 +1,267 @@
+/* stage.c: STEP/DIR integration, enable, limit switches, timing statistics.
+ * Pin map (Arduino Uno + CNC shield, atmega328p):
+ *   STEP X/Y/Z  PD2/PD3/PD4 (Uno D2-D4)   DIR X/Y/Z  PD5/PD6/PD7 (D5-D7)
+ *   enable      PB0 (D8), active low       limits X/Y/Z PB1/PB2/PB3 (D9-D11),
+ *   switches close to ground, so a pressed switch reads 0. */
+#include <stdio.h>
+#include <string.h>
+#include <math.h>
+
+#include "avr_ioport.h"
+#include "sim_interrupts.h"
+#include "stage.h"
+
+/* data-space addresses of the atmega328p port registers */
+#define REG_PINB 0x23
+#define REG_DDRB 0x24
+#define REG_PORTB 0x25
+#define REG_DDRD 0x2a
+#define REG_PORTD 0x2b
+
+#define STEP_BIT0 2	/* PD2 */
+#define DIR_BIT0 5	/* PD5 */
+#define ENABLE_BIT 0	/* PB0 */
+#define LIMIT_BIT0 1	/* PB1 */
+
+int stage_enabled(const struct stage *s)
+{
+	const uint8_t *d = s->avr->data;
+	return (d[REG_DDRB] & (1 << ENABLE_BIT)) && !(d[REG_PORTB] & (1 << ENABLE_BIT));
+}
+
+double stage_angle(const struct stage *s, int axis)
+{
+	const struct stage_axis *a = &s->axis[axis];
+	return (double)a->steps / a->steps_per_deg;
+}
+
+static void min_update(uint64_t *slot, uint64_t v)
+{
+	if (*slot == 0 || v < *slot)
+		*slot = v;
+}
+
+/* Switch model: pressed once the axis is at or beyond the switch position in
+ * the switch's direction (and within limit_width past it, if set); once
+ * pressed it releases only after backing off by limit_hyst. */
+static void limit_update(struct stage *s, struct stage_axis *a)
+{
+	double past, lo, hi;
+	int active;
+
+	if (!a->limit_enabled)
+		return;
+	past = a->limit_dir * (stage_angle(s, a->index) - a->limit_deg);
+	lo = a->limit_active ? -s->limit_hyst : 0.0;
+	hi = s->limit_width > 0 ? s->limit_width + (a->limit_active ? s->limit_hyst : 0.0) : INFINITY;
+	active = past >= lo - 1e-9 && past <= hi + 1e-9;
+	if (active && !a->limit_active)
+		a->limit_hits++;
+	a->limit_active = active;
+	if (a->limit_level_driven != !active) {
+		a->limit_level_driven = !active;
+		avr_raise_irq(s->limit_irq[a->index], (uint32_t)!active);
+	}
+}
+
+void stage_sync_limits(struct stage *s)
+{
+	for (int i = 0; i < STAGE_AXES; i++) {
+		struct stage_axis *a = &s->axis[i];
+		int level = a->limit_enabled ? !a->limit_active : 1;
+		int bit = (s->avr->data[REG_PINB] >> (LIMIT_BIT0 + i)) & 1;
+		if (bit != level || a->limit_level_driven != level) {
+			a->limit_level_driven = level;
+			avr_raise_irq(s->limit_irq[i], (uint32_t)level);
+		}
+	}
+}
+
+static void step_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	struct stage_axis *a = param;
+	struct stage *s = a->stage;
+	avr_t *avr = s->avr;
+	uint64_t now = avr->cycle;
+	int inv = (s->step_invert_mask >> a->index) & 1;
+	int old = (int)(irq->value & 1) ^ inv;
+	int v = (int)(value & 1) ^ inv;
+	int dir;
+
+	if (v == old)
+		return;
+	if (!v) {		/* trailing edge */
+		if (a->last_rise)
+			min_update(&a->min_high, now - a->last_rise);
+		a->last_fall = now;
+		return;
+	}
+	if (a->last_fall)
+		min_update(&a->min_low, now - a->last_fall);
+	if (a->last_rise)
+		min_update(&a->min_period, now - a->last_rise);
+	a->last_rise = now;
+
+	dir = (avr->data[REG_PORTD] >> (DIR_BIT0 + a->index)) & 1;
+	if (dir != a->dir_level) {
+		/* DIR changes in this very write: no setup time at all */
+		a->dir_violations++;
+		a->min_dir_setup = 1;
+	} else if (a->dir_pending) {
+		min_update(&a->min_dir_setup, now - a->dir_change);
+	}
+	a->dir_pending = 0;
+
+	if (!(avr->data[REG_DDRD] & (1 << (STEP_BIT0 + a->index))) || !stage_enabled(s)) {
+		a->ignored++;
+		return;
+	}
+	dir ^= (s->dir_invert_mask >> a->index) & 1;
+	a->steps += dir ? -1 : 1;	/* grbl convention: DIR high = negative */
+	a->pulses++;
+	limit_update(s, a);
+}
+
+static void dir_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	struct stage_axis *a = param;
+	struct stage *s = a->stage;
+	int v = (int)(value & 1);
+
+	(void)irq;
+	if (v == a->dir_level)
+		return;
+	a->dir_level = v;
+	a->dir_pending = 1;
+	a->dir_change = s->avr->cycle;
+	/* the driver samples DIR at the rising STEP edge; changing it while STEP
+	 * is still high is harmless for A4988/DRV8825 but worth counting when it
+	 * happens before the minimum hold time */
+	if (a->last_rise && a->last_fall < a->last_rise && s->avr->cycle - a->last_rise < 4)
+		a->dir_violations++;
+}
+
+struct vec_ctx {
+	struct stage *stage;
+	int vector;
+};
+static struct vec_ctx vec_ctx[STAGE_VECTORS];
+
+static void running_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+	struct vec_ctx *c = param;
+	struct stage_vector *v = &c->stage->vec[c->vector];
+	uint64_t now = c->stage->avr->cycle;
+
+	(void)irq;
+	if (value) {
+		v->entered = now;
+		v->count++;
+	} else if (v->entered) {
+		uint64_t d = now - v->entered;
+		v->total_cycles += d;
+		if (d > v->max_cycles)
+			v->max_cycles = d;
+		v->entered = 0;
+	}
+}
+
+int stage_attach(struct stage *s, avr_t *avr, char *err)
+{
+	s->avr = avr;
+	for (int i = 0; i < STAGE_AXES; i++) {
+		struct stage_axis *a = &s->axis[i];
+		avr_irq_t *step = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), STEP_BIT0 + i);
+		avr_irq_t *dir = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), DIR_BIT0 + i);
+		s->limit_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), LIMIT_BIT0 + i);
+		if (!step || !dir || !s->limit_irq[i]) {
+			snprintf(err, ERR_LEN, "avr_io_getirq: no port B/D pins on %s", avr->mmcu);
+			return -1;
+		}
+		a->stage = s;
+		a->index = i;
+		a->limit_level_driven = -1;
+		avr_irq_register_notify(step, step_hook, a);
+		avr_irq_register_notify(dir, dir_hook, a);
+		limit_update(s, a);
+	}
+	for (int v = 1; v < STAGE_VECTORS; v++) {
+		avr_irq_t *irq = avr_get_interrupt_irq(avr, (uint8_t)v);
+		if (!irq)
+			continue;
+		vec_ctx[v].stage = s;
+		vec_ctx[v].vector = v;
+		avr_irq_register_notify(irq + AVR_INT_IRQ_RUNNING, running_hook, &vec_ctx[v]);
+	}
+	stage_sync_limits(s);
+	return 0;
+}
+
+void stage_clear_stats(struct stage *s)
+{
+	for (int i = 0; i < STAGE_AXES; i++) {
+		struct stage_axis *a = &s->axis[i];
+		a->pulses = a->ignored = a->dir_violations = a->limit_hits = 0;
+		a->min_high = a->min_low = a->min_period = a->min_dir_setup = 0;
+		a->last_rise = a->last_fall = 0;
+		a->dir_pending = 0;
+	}
+	for (int v = 0; v < STAGE_VECTORS; v++) {
+		uint64_t entered = s->vec[v].entered;
+		memset(&s->vec[v], 0, sizeof(s->vec[v]));
+		s->vec[v].entered = entered;
+	}
+}
+
+size_t stage_format_state(const struct stage *s, char *buf, size_t len)
+{
+	int n = snprintf(buf, len,
+		"{\"x\": %.6f, \"y\": %.6f, \"z\": %.6f, \"steps\": [%ld, %ld, %ld], "
+		"\"enabled\": %s, \"cycle\": %llu, \"limits\": [%d, %d, %d]}\n",
+		stage_angle(s, 0), stage_angle(s, 1), stage_angle(s, 2),
+		s->axis[0].steps, s->axis[1].steps, s->axis[2].steps,
+		stage_enabled(s) ? "true" : "false",
+		(unsigned long long)s->avr->cycle,
+		s->axis[0].limit_active, s->axis[1].limit_active, s->axis[2].limit_active);
+	return n < 0 ? 0 : ((size_t)n >= len ? len - 1 : (size_t)n);
+}
+
+size_t stage_format_stats(const struct stage *s, char *buf, size_t len)
+{
+	size_t off = 0;
+	int n;
+
+#define OUT(...) do { \
+		n = snprintf(buf + off, len - off, __VA_ARGS__); \
+		if (n < 0 || (size_t)n >= len - off) return off; \
+		off += (size_t)n; \
+	} while (0)
+
+	OUT("{\"cycle\": %llu, \"frequency\": %u, \"axes\": [",
+	    (unsigned long long)s->avr->cycle, s->avr->frequency);
+	for (int i = 0; i < STAGE_AXES; i++) {
+		const struct stage_axis *a = &s->axis[i];
+		OUT("%s{\"steps\": %ld, \"pulses\": %llu, \"ignored\": %llu, "
+		    "\"min_high\": %llu, \"min_low\": %llu, \"min_period\": %llu, "
+		    "\"min_dir_setup\": %llu, \"dir_violations\": %llu, \"limit_hits\": %llu}",
+		    i ? ", " : "", a->steps, (unsigned long long)a->pulses,
+		    (unsigned long long)a->ignored, (unsigned long long)a->min_high,
+		    (unsigned long long)a->min_low, (unsigned long long)a->min_period,
+		    (unsigned long long)a->min_dir_setup, (unsigned long long)a->dir_violations,
+		    (unsigned long long)a->limit_hits);
+	}
+	OUT("], \"vectors\": {");
+	int first = 1;
+	for (int v = 1; v < STAGE_VECTORS; v++) {
+		const struct stage_vector *sv = &s->vec[v];
+		if (!sv->count)
+			continue;
+		OUT("%s\"%d\": {\"count\": %llu, \"max_cycles\": %llu, \"total_cycles\": %llu}",
+		    first ? "" : ", ", v, (unsigned long long)sv->count,
+		    (unsigned long long)sv->max_cycles, (unsigned long long)sv->total_cycles);
+		first = 0;
+	}
+	OUT("}}\n");
+#undef OUT
+	return off;
+}

@@ -1,0 +1,80 @@
+/* stage.h: the mechanical side of the simulated stage. Integrates STEP/DIR
+ * pulses into motor positions, honours the drivers' enable line, drives the
+ * limit-switch inputs, and keeps pulse-timing and interrupt-timing statistics.
+ * Everything here runs inside the simulation thread (simavr IRQ hooks). */
+#ifndef STAGE_H
+#define STAGE_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include "sim_avr.h"
+
+#define STAGE_AXES 3
+#define STAGE_VECTORS 32
+#define ERR_LEN 256
+
+struct stage;
+
+struct stage_axis {
+	struct stage *stage;
+	int index;
+	double steps_per_deg;
+	long steps;			/* position in steps, start offset included */
+	uint64_t pulses;		/* rising edges that moved the motor */
+	uint64_t ignored;		/* rising edges while disabled or not an output */
+	int dir_level;			/* last DIR pin level seen by the DIR hook */
+	int dir_pending;		/* DIR changed since the last rising edge */
+	uint64_t dir_change;		/* cycle of that change */
+	uint64_t last_rise, last_fall;	/* 0: none yet */
+	uint64_t min_high, min_low, min_period, min_dir_setup;	/* cycles; 0: none yet */
+	uint64_t dir_violations;	/* DIR changed in the same write as a rising STEP, or while STEP high */
+	/* limit switch */
+	int limit_enabled;
+	double limit_deg;		/* switch position */
+	int limit_dir;			/* +1: active above limit_deg, -1: below */
+	int limit_active;
+	int limit_level_driven;		/* pin level last driven, -1: never */
+	uint64_t limit_hits;		/* inactive -> active transitions */
+};
+
+struct stage_vector {
+	uint64_t count;
+	uint64_t entered;		/* cycle of the last entry, 0: not running */
+	uint64_t max_cycles, total_cycles;
+};
+
+struct stage {
+	avr_t *avr;
+	struct stage_axis axis[STAGE_AXES];
+	int dir_invert_mask;		/* bit i: DIR high means positive on axis i */
+	int step_invert_mask;		/* bit i: the step edge is the falling one */
+	double limit_width;		/* degrees past the switch position it stays pressed; 0: forever */
+	double limit_hyst;		/* degrees it must travel back to release */
+	struct stage_vector vec[STAGE_VECTORS];
+	avr_irq_t *limit_irq[STAGE_AXES];
+};
+
+/* Hook the STEP/DIR/limit pins and the interrupt vectors of a freshly
+ * initialised atmega328p. Called once, before the first avr_run. */
+int stage_attach(struct stage *s, avr_t *avr, char *err);
+
+/* Drive the limit inputs again where the pin register disagrees with the
+ * switch state (after a reset cleared it). Main loop, between avr_run calls. */
+void stage_sync_limits(struct stage *s);
+
+/* 1 if the drivers are enabled now (PB0 an output driven low). */
+int stage_enabled(const struct stage *s);
+
+/* Mechanical angle of one axis in degrees. */
+double stage_angle(const struct stage *s, int axis);
+
+/* Format the `state` reply (one JSON line, with '\n') into buf. Returns length. */
+size_t stage_format_state(const struct stage *s, char *buf, size_t len);
+
+/* Format the `stats` reply (pulse timing, interrupt timing; one JSON line). */
+size_t stage_format_stats(const struct stage *s, char *buf, size_t len);
+
+/* Forget pulse and interrupt statistics (not positions). */
+void stage_clear_stats(struct stage *s);
+
+#endif
