@@ -1,0 +1,147 @@
+/* config.c -- the key = value config file and the setting of keys. */
+#define _POSIX_C_SOURCE 200809L
+#include "config.h"
+
+#include <ctype.h>
+#include <errno.h>
+#include <limits.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+
+#include "poseinfer.h"
+
+void config_init(pi_config *c)
+{
+    memset(c, 0, sizeof *c);
+    c->threads = 1;
+    c->warmup = 1;
+    c->max_pixels = PI_DEFAULT_MAX_PIXELS;
+    c->timeout_ms = 5000;
+}
+
+void config_free(pi_config *c)
+{
+    free(c->model);
+    free(c->serve);
+    free(c->camera);
+    free(c->dump_tensor);
+    memset(c, 0, sizeof *c);
+}
+
+static int set_str(char **dst, const char *v, char *err)
+{
+    char *s = strdup(v);
+    if (!s) { snprintf(err, PI_ERR_LEN, "out of memory"); return -1; }
+    free(*dst);
+    *dst = s;
+    return 0;
+}
+
+static int set_long(long *dst, const char *key, const char *v, long lo, long hi, char *err)
+{
+    char *end;
+    long n;
+    errno = 0;
+    n = strtol(v, &end, 10);
+    if (errno || end == v || *end != '\0' || n < lo || n > hi) {
+        snprintf(err, PI_ERR_LEN, "%s: expected an integer in [%ld, %ld], got \"%.64s\"", key, lo, hi, v);
+        return -1;
+    }
+    *dst = n;
+    return 0;
+}
+
+static int set_int(int *dst, const char *key, const char *v, long lo, long hi, char *err)
+{
+    long n;
+    if (set_long(&n, key, v, lo, hi, err) < 0) return -1;
+    *dst = (int)n;
+    return 0;
+}
+
+static int set_bool(int *dst, const char *key, const char *v, char *err)
+{
+    if (!strcasecmp(v, "yes") || !strcasecmp(v, "true") || !strcmp(v, "1") || !strcasecmp(v, "on")) *dst = 1;
+    else if (!strcasecmp(v, "no") || !strcasecmp(v, "false") || !strcmp(v, "0") || !strcasecmp(v, "off")) *dst = 0;
+    else {
+        snprintf(err, PI_ERR_LEN, "%s: expected yes or no, got \"%.64s\"", key, v);
+        return -1;
+    }
+    return 0;
+}
+
+int config_set(pi_config *c, const char *key_in, const char *v, char *err)
+{
+    char key[64];
+    size_t i;
+    for (i = 0; key_in[i] && i < sizeof key - 1; i++) key[i] = key_in[i] == '-' ? '_' : key_in[i];
+    key[i] = '\0';
+    if (!strcmp(key, "model")) return set_str(&c->model, v, err);
+    if (!strcmp(key, "serve")) return set_str(&c->serve, v, err);
+    if (!strcmp(key, "camera")) return set_str(&c->camera, v, err);
+    if (!strcmp(key, "continuous")) return set_bool(&c->continuous, key, v, err);
+    if (!strcmp(key, "timings")) return set_bool(&c->timings, key, v, err);
+    if (!strcmp(key, "count")) return set_long(&c->count, key, v, 0, LONG_MAX, err);
+    if (!strcmp(key, "interval_ms")) return set_int(&c->interval_ms, key, v, 0, 3600000, err);
+    if (!strcmp(key, "threads")) return set_int(&c->threads, key, v, 1, 256, err);
+    if (!strcmp(key, "warmup")) return set_int(&c->warmup, key, v, 0, 100, err);
+    if (!strcmp(key, "max_pixels")) return set_long(&c->max_pixels, key, v, 64, 1L << 34, err);
+    if (!strcmp(key, "timeout_ms")) return set_int(&c->timeout_ms, key, v, 1, 3600000, err);
+    snprintf(err, PI_ERR_LEN,
+             "unknown key \"%.64s\"; keys: model, serve, camera, continuous, count, interval_ms, "
+             "threads, warmup, max_pixels, timeout_ms, timings", key_in);
+    return -1;
+}
+
+static char *trim(char *s)
+{
+    char *e;
+    while (isspace((unsigned char)*s)) s++;
+    e = s + strlen(s);
+    while (e > s && isspace((unsigned char)e[-1])) *--e = '\0';
+    return s;
+}
+
+int config_load(pi_config *c, const char *path, char *err)
+{
+    FILE *f = fopen(path, "r");
+    char line[1024], why[PI_ERR_LEN];
+    int lineno = 0;
+    if (!f) {
+        snprintf(err, PI_ERR_LEN, "config(%s): %s", path, strerror(errno));
+        return -1;
+    }
+    while (fgets(line, sizeof line, f)) {
+        char *k, *v, *eq;
+        lineno++;
+        if (!strchr(line, '\n') && !feof(f)) {
+            snprintf(err, PI_ERR_LEN, "config(%s:%d): line too long", path, lineno);
+            goto fail;
+        }
+        k = trim(line);
+        if (*k == '\0' || *k == '#') continue;
+        eq = strchr(k, '=');
+        if (!eq) {
+            snprintf(err, PI_ERR_LEN, "config(%s:%d): expected key = value", path, lineno);
+            goto fail;
+        }
+        *eq = '\0';
+        k = trim(k);
+        v = trim(eq + 1);
+        if (config_set(c, k, v, why) < 0) {
+            snprintf(err, PI_ERR_LEN, "config(%.40s:%d): %.180s", path, lineno, why);
+            goto fail;
+        }
+    }
+    if (ferror(f)) {
+        snprintf(err, PI_ERR_LEN, "config(%s): read error", path);
+        goto fail;
+    }
+    fclose(f);
+    return 0;
+fail:
+    fclose(f);
+    return -1;
+}

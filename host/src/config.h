@@ -1,0 +1,35 @@
+/* config.h -- poseinfer settings: a config file (key = value) and flags, the
+ * flags overriding the file. */
+#ifndef PI_CONFIG_H
+#define PI_CONFIG_H
+
+typedef struct pi_config {
+    char *model;        /* model = FILE.onnx */
+    char *serve;        /* serve = unix:PATH | tcp:127.0.0.1:PORT */
+    char *camera;       /* camera = /dev/video0 | 0 | gst:... | unix:PATH */
+    char *dump_tensor;  /* (flag only) write the input tensor of one image */
+    int continuous;     /* continuous = yes|no: capture mode */
+    long count;         /* count = N: frames in continuous mode (0 = until stopped) */
+    int interval_ms;    /* interval_ms = N: pause between continuous frames */
+    int threads;        /* threads = N: ONNX Runtime intra-op threads */
+    int warmup;         /* warmup = N: warm-up runs at model load */
+    long max_pixels;    /* max_pixels = N: refuse larger frames */
+    int timeout_ms;     /* timeout_ms = N: frame-server timeout */
+    int timings;        /* timings = yes|no: add decode/preprocess/infer ms */
+} pi_config;
+
+/* Defaults. */
+void config_init(pi_config *c);
+
+/* Free the strings. */
+void config_free(pi_config *c);
+
+/* Set one key (file keys; '-' and '_' are the same). 0, or -1 with
+ * err "reason". */
+int config_set(pi_config *c, const char *key, const char *value, char *err);
+
+/* Read a config file: "key = value" lines, '#' comments, blank lines.
+ * Errors name the file and line: "config(FILE:LINE): reason". */
+int config_load(pi_config *c, const char *path, char *err);
+
+#endif

@@ -1,0 +1,30 @@
+/* internal.h -- shared between the library's C files and the program (not
+ * part of the public API). */
+#ifndef PI_INTERNAL_H
+#define PI_INTERNAL_H
+
+#include <stddef.h>
+
+#include "poseinfer.h"
+#include "shim.h"
+
+/* Monotonic clock in milliseconds. */
+double pi_now_ms(void);
+
+/* snprintf into err (PI_ERR_LEN bytes); NULL err is fine. */
+void pi_seterr(char *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+/* Parse the spherepose.preprocess JSON over the defaults; `model` names the
+ * file in messages. */
+int pi_parse_preprocess(const char *text, pp_params *p, char *err, const char *model);
+
+/* Read a whole regular file into *buf (grown as needed, capacity *cap). */
+int pi_read_file(const char *path, unsigned char **buf, size_t *cap, size_t *len, char *err);
+
+/* Read and decode an image file into the context's frame holder. */
+int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err);
+
+/* Decode an encoded image into m, timing it into f->decode_ms. */
+int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f, char *err);
+
+#endif

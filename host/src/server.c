@@ -1,0 +1,513 @@
+/* server.c -- the daemon: a line protocol over a Unix or loopback TCP socket,
+ * and continuous capture. One thread; everything waits in poll(2), so an
+ * idle daemon uses no CPU. Protocol: docs/poseinfer.md. */
+#define _GNU_SOURCE
+#include "server.h"
+
+#include <arpa/inet.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "internal.h"
+
+#define MAX_CLIENTS 64
+#define MAX_LINE 4096
+#define MAX_OUT (1024 * 1024)
+
+static volatile sig_atomic_t got_stop, got_hup;
+static int sig_pipe[2] = {-1, -1};
+
+void log_msg(const char *fmt, ...)
+{
+    char buf[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    fprintf(stderr, "poseinfer: %s\n", buf);
+}
+
+static void on_signal(int sig)
+{
+    int saved = errno;
+    if (sig == SIGHUP) got_hup = 1;
+    else got_stop = 1;
+    if (sig_pipe[1] >= 0) {
+        ssize_t w = write(sig_pipe[1], "x", 1); /* wake poll; a full pipe is fine */
+        (void)w;
+    }
+    errno = saved;
+}
+
+int signals_install(char *err)
+{
+    struct sigaction sa;
+    if (sig_pipe[0] < 0 && pipe2(sig_pipe, O_CLOEXEC | O_NONBLOCK) < 0) {
+        pi_seterr(err, "pipe2: %s", strerror(errno));
+        return -1;
+    }
+    memset(&sa, 0, sizeof sa);
+    sa.sa_handler = on_signal;
+    sigemptyset(&sa.sa_mask);
+    sa.sa_flags = 0; /* no SA_RESTART: a blocking call returns EINTR */
+    if (sigaction(SIGTERM, &sa, NULL) < 0 || sigaction(SIGINT, &sa, NULL) < 0 ||
+        sigaction(SIGHUP, &sa, NULL) < 0) {
+        pi_seterr(err, "sigaction: %s", strerror(errno));
+        return -1;
+    }
+    signal(SIGPIPE, SIG_IGN);
+    return 0;
+}
+
+static void drain_sig_pipe(void)
+{
+    char buf[64];
+    while (read(sig_pipe[0], buf, sizeof buf) > 0) {}
+}
+
+/* ---- JSON lines ------------------------------------------------------------ */
+
+void result_json(sbuf *s, const char *key, const char *name, const pi_result *r, int timings)
+{
+    sb_puts(s, "{");
+    if (key) {
+        sb_json_str(s, key);
+        sb_puts(s, ": ");
+        sb_json_str(s, name);
+        sb_puts(s, ", ");
+    }
+    sb_puts(s, "\"x\": "); sb_json_num(s, r->x, 4);
+    sb_puts(s, ", \"y\": "); sb_json_num(s, r->y, 4);
+    sb_puts(s, ", \"z\": "); sb_json_num(s, r->z, 4);
+    sb_puts(s, ", \"ms\": "); sb_json_num(s, r->total_ms, 3);
+    if (r->has_rotmat) {
+        sb_puts(s, ", \"rotmat\": [");
+        for (int i = 0; i < 3; i++) {
+            sb_puts(s, i ? ", [" : "[");
+            for (int j = 0; j < 3; j++) {
+                if (j) sb_puts(s, ", ");
+                sb_json_num(s, r->rotmat[i][j], 6);
+            }
+            sb_puts(s, "]");
+        }
+        sb_puts(s, "]");
+    }
+    if (timings) {
+        sb_puts(s, ", \"decode_ms\": "); sb_json_num(s, r->decode_ms, 3);
+        sb_puts(s, ", \"preprocess_ms\": "); sb_json_num(s, r->preprocess_ms, 3);
+        sb_puts(s, ", \"infer_ms\": "); sb_json_num(s, r->infer_ms, 3);
+        sb_puts(s, ", \"cx\": "); sb_json_num(s, r->cx, 2);
+        sb_puts(s, ", \"cy\": "); sb_json_num(s, r->cy, 2);
+        sb_puts(s, ", \"r\": "); sb_json_num(s, r->r, 2);
+    }
+    sb_puts(s, "}");
+}
+
+void error_json(sbuf *s, const char *key, const char *name, const char *msg)
+{
+    sb_puts(s, "{");
+    if (key) {
+        sb_json_str(s, key);
+        sb_puts(s, ": ");
+        sb_json_str(s, name);
+        sb_puts(s, ", ");
+    }
+    sb_puts(s, "\"error\": ");
+    sb_json_str(s, msg);
+    sb_puts(s, "}");
+}
+
+/* ---- stats -------------------------------------------------------------------- */
+
+static void record(app *a, int ok, double ms)
+{
+    if (!ok) { a->errors++; return; }
+    a->frames++;
+    a->lat[a->nlat % LAT_WINDOW] = ms;
+    a->nlat++;
+}
+
+static int cmp_double(const void *x, const void *y)
+{
+    double a = *(const double *)x, b = *(const double *)y;
+    return (a > b) - (a < b);
+}
+
+double app_percentile(const app *a, double pct)
+{
+    double tmp[LAT_WINDOW];
+    size_t n = a->nlat < LAT_WINDOW ? a->nlat : LAT_WINDOW;
+    size_t idx;
+    if (n == 0) return NAN;
+    memcpy(tmp, a->lat, n * sizeof(double));
+    qsort(tmp, n, sizeof(double), cmp_double);
+    idx = (size_t)ceil(pct / 100.0 * (double)n);
+    if (idx > 0) idx--;
+    if (idx >= n) idx = n - 1;
+    return tmp[idx];
+}
+
+int app_reload(app *a, char *err)
+{
+    pi_options o;
+    pi_ctx *n;
+    pi_options_init(&o);
+    o.intra_threads = a->cfg->threads;
+    o.warmup_runs = a->cfg->warmup;
+    o.max_pixels = a->cfg->max_pixels;
+    n = pi_open(a->cfg->model, &o, err);
+    if (!n) return -1;
+    pi_close(a->ctx);
+    a->ctx = n;
+    a->reloads++;
+    return 0;
+}
+
+/* ---- protocol ------------------------------------------------------------------- */
+
+static const char *skip_space(const char *s)
+{
+    while (*s == ' ' || *s == '\t') s++;
+    return s;
+}
+
+int proto_handle(app *a, const char *line, sbuf *out)
+{
+    char err[PI_ERR_LEN];
+    pi_result r;
+    const char *arg;
+    size_t cmdlen;
+
+    a->requests++;
+    line = skip_space(line);
+    cmdlen = strcspn(line, " \t");
+    arg = skip_space(line + cmdlen);
+
+#define IS(c) (cmdlen == strlen(c) && strncmp(line, c, cmdlen) == 0)
+    if (cmdlen == 0) {
+        error_json(out, NULL, NULL, "empty command; commands: ping, infer PATH, grab, stats, reload, quit");
+    } else if (IS("ping")) {
+        sb_puts(out, "{\"pong\": true}");
+    } else if (IS("infer")) {
+        if (!*arg) {
+            error_json(out, NULL, NULL, "infer: expected a path");
+        } else if (!a->ctx) {
+            error_json(out, "file", arg, "no model loaded");
+        } else if (pi_infer_file(a->ctx, arg, &r, err) < 0) {
+            record(a, 0, 0);
+            error_json(out, "file", arg, err);
+        } else {
+            record(a, 1, r.total_ms);
+            result_json(out, "file", arg, &r, 1);
+        }
+    } else if (IS("grab")) {
+        if (!a->cam) {
+            error_json(out, NULL, NULL, "grab: no camera (start with --camera SPEC)");
+        } else if (!a->ctx) {
+            error_json(out, NULL, NULL, "no model loaded");
+        } else if (pi_infer_camera(a->ctx, a->cam, &r, err) < 0) {
+            record(a, 0, 0);
+            error_json(out, "camera", a->cfg->camera, err);
+        } else {
+            record(a, 1, r.total_ms);
+            result_json(out, "camera", a->cfg->camera, &r, 1);
+        }
+    } else if (IS("stats")) {
+        sb_puts(out, "{\"model\": ");
+        sb_json_str(out, a->cfg->model);
+        sb_printf(out, ", \"uptime_s\": %.1f, \"requests\": %lu, \"frames\": %lu, \"errors\": %lu, "
+                       "\"reloads\": %lu, \"clients\": %d, \"ms_p50\": ",
+                  (pi_now_ms() - a->started_ms) / 1000.0, a->requests, a->frames, a->errors,
+                  a->reloads, a->clients);
+        sb_json_num(out, app_percentile(a, 50), 3);
+        sb_puts(out, ", \"ms_p99\": ");
+        sb_json_num(out, app_percentile(a, 99), 3);
+        sb_puts(out, "}");
+    } else if (IS("reload")) {
+        if (app_reload(a, err) < 0) error_json(out, NULL, NULL, err);
+        else sb_puts(out, "{\"reloaded\": true}");
+    } else if (IS("quit")) {
+        sb_puts(out, "{\"bye\": true}\n");
+        return 1;
+    } else {
+        char msg[160];
+        snprintf(msg, sizeof msg, "unknown command \"%.*s\"; commands: ping, infer PATH, grab, stats, reload, quit",
+                 (int)(cmdlen > 40 ? 40 : cmdlen), line);
+        error_json(out, NULL, NULL, msg);
+    }
+#undef IS
+    sb_puts(out, "\n");
+    return 0;
+}
+
+/* ---- sockets -------------------------------------------------------------------- */
+
+int server_listen(const char *spec, char *err)
+{
+    int fd = -1, one = 1;
+    if (strncmp(spec, "unix:", 5) == 0) {
+        const char *path = spec + 5;
+        struct sockaddr_un sa;
+        struct stat st;
+        if (!*path || strlen(path) >= sizeof sa.sun_path) {
+            pi_seterr(err, "listen(%s): empty or too long path", spec);
+            return -1;
+        }
+        memset(&sa, 0, sizeof sa);
+        sa.sun_family = AF_UNIX;
+        memcpy(sa.sun_path, path, strlen(path) + 1);
+        fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+        if (fd < 0) { pi_seterr(err, "socket: %s", strerror(errno)); return -1; }
+        /* A socket file left by a daemon that died: remove it, but never
+         * steal the address of one that still answers. */
+        if (lstat(path, &st) == 0 && S_ISSOCK(st.st_mode)) {
+            int probe = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+            int live = probe >= 0 && connect(probe, (struct sockaddr *)&sa, sizeof sa) == 0;
+            if (probe >= 0) close(probe);
+            if (live) {
+                pi_seterr(err, "listen(%s): another server is listening there", spec);
+                goto fail;
+            }
+            unlink(path);
+        }
+        if (bind(fd, (struct sockaddr *)&sa, sizeof sa) < 0) {
+            pi_seterr(err, "bind(%s): %s", spec, strerror(errno));
+            goto fail;
+        }
+    } else if (strncmp(spec, "tcp:", 4) == 0) {
+        char host[64];
+        const char *colon = strrchr(spec + 4, ':');
+        struct sockaddr_in sa;
+        char *end;
+        long port;
+        if (!colon || (size_t)(colon - (spec + 4)) >= sizeof host) {
+            pi_seterr(err, "listen(%s): expected tcp:HOST:PORT", spec);
+            return -1;
+        }
+        memcpy(host, spec + 4, (size_t)(colon - (spec + 4)));
+        host[colon - (spec + 4)] = '\0';
+        port = strtol(colon + 1, &end, 10);
+        memset(&sa, 0, sizeof sa);
+        sa.sin_family = AF_INET;
+        if (*end || end == colon + 1 || port < 0 || port > 65535 || inet_pton(AF_INET, host, &sa.sin_addr) != 1) {
+            pi_seterr(err, "listen(%s): expected tcp:IPV4:PORT, e.g. tcp:127.0.0.1:7070", spec);
+            return -1;
+        }
+        sa.sin_port = htons((unsigned short)port);
+        fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+        if (fd < 0) { pi_seterr(err, "socket: %s", strerror(errno)); return -1; }
+        setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+        if (bind(fd, (struct sockaddr *)&sa, sizeof sa) < 0) {
+            pi_seterr(err, "bind(%s): %s", spec, strerror(errno));
+            goto fail;
+        }
+    } else {
+        pi_seterr(err, "listen(%s): expected unix:PATH or tcp:HOST:PORT", spec);
+        return -1;
+    }
+    if (listen(fd, 16) < 0) {
+        pi_seterr(err, "listen(%s): %s", spec, strerror(errno));
+        goto fail;
+    }
+    return fd;
+fail:
+    close(fd);
+    return -1;
+}
+
+typedef struct client {
+    int fd;
+    char in[MAX_LINE];
+    size_t inlen;
+    sbuf out;
+    size_t outoff;
+    int closing;
+} client;
+
+static void client_close(app *a, client *c)
+{
+    close(c->fd);
+    sb_free(&c->out);
+    c->fd = -1;
+    a->clients--;
+}
+
+/* Write what can be written now; -1 when the client is gone. */
+static int client_flush(client *c)
+{
+    while (c->outoff < c->out.len) {
+        ssize_t w = send(c->fd, c->out.buf + c->outoff, c->out.len - c->outoff, MSG_NOSIGNAL);
+        if (w < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) return 0;
+        if (w < 0 && errno == EINTR) continue;
+        if (w < 0) return -1;
+        c->outoff += (size_t)w;
+    }
+    sb_reset(&c->out);
+    c->outoff = 0;
+    return 0;
+}
+
+/* Read and answer complete lines; -1 when the client is to be dropped. */
+static int client_read(app *a, client *c)
+{
+    for (;;) {
+        ssize_t r = recv(c->fd, c->in + c->inlen, sizeof c->in - c->inlen, 0);
+        if (r < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) break;
+        if (r < 0 && errno == EINTR) continue;
+        if (r <= 0) return -1;
+        c->inlen += (size_t)r;
+        for (;;) {
+            char *nl = memchr(c->in, '\n', c->inlen);
+            size_t n;
+            if (!nl) break;
+            *nl = '\0';
+            n = (size_t)(nl - c->in) + 1;
+            if (nl > c->in && nl[-1] == '\r') nl[-1] = '\0';
+            if (!c->closing && proto_handle(a, c->in, &c->out)) c->closing = 1;
+            memmove(c->in, c->in + n, c->inlen - n);
+            c->inlen -= n;
+        }
+        if (c->inlen == sizeof c->in) {
+            error_json(&c->out, NULL, NULL, "line too long");
+            sb_puts(&c->out, "\n");
+            c->closing = 1;
+            break;
+        }
+        if (c->out.len > MAX_OUT || c->out.oom) return -1; /* a client that never reads */
+    }
+    return 0;
+}
+
+int server_run(app *a, int lfd, const char *spec, char *err)
+{
+    client cl[MAX_CLIENTS];
+    struct pollfd pfd[MAX_CLIENTS + 2];
+    int idx[MAX_CLIENTS + 2];
+    for (int i = 0; i < MAX_CLIENTS; i++) cl[i].fd = -1;
+
+    while (!got_stop) {
+        int n = 0, r;
+        pfd[n].fd = sig_pipe[0]; pfd[n].events = POLLIN; idx[n++] = -1;
+        pfd[n].fd = lfd; pfd[n].events = a->clients < MAX_CLIENTS ? POLLIN : 0; idx[n++] = -2;
+        for (int i = 0; i < MAX_CLIENTS; i++) {
+            if (cl[i].fd < 0) continue;
+            pfd[n].fd = cl[i].fd;
+            pfd[n].events = (short)(POLLIN | (cl[i].out.len > cl[i].outoff ? POLLOUT : 0));
+            idx[n++] = i;
+        }
+        r = poll(pfd, (nfds_t)n, -1); /* no timeout: idle means asleep */
+        if (r < 0 && errno == EINTR) continue;
+        if (r < 0) { pi_seterr(err, "poll: %s", strerror(errno)); goto fail; }
+        for (int k = 0; k < n; k++) {
+            if (!pfd[k].revents) continue;
+            if (idx[k] == -1) {
+                drain_sig_pipe();
+            } else if (idx[k] == -2) {
+                int fd = accept4(lfd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+                if (fd < 0) continue;
+                for (int i = 0; i < MAX_CLIENTS; i++) {
+                    if (cl[i].fd >= 0) continue;
+                    cl[i].fd = fd;
+                    cl[i].inlen = 0;
+                    cl[i].outoff = 0;
+                    cl[i].closing = 0;
+                    sb_init(&cl[i].out);
+                    a->clients++;
+                    fd = -1;
+                    break;
+                }
+                if (fd >= 0) close(fd);
+            } else {
+                client *c = &cl[idx[k]];
+                int drop = 0;
+                if (pfd[k].revents & (POLLIN | POLLHUP | POLLERR)) drop = client_read(a, c) < 0;
+                if (!drop) drop = client_flush(c) < 0;
+                if (!drop && c->closing && c->out.len == 0) drop = 1;
+                if (drop) client_close(a, c);
+            }
+        }
+        if (got_hup) {
+            got_hup = 0;
+            if (app_reload(a, err) < 0) log_msg("SIGHUP: reload failed, keeping the old model: %s", err);
+            else log_msg("SIGHUP: reloaded %s", a->cfg->model);
+        }
+    }
+    log_msg("stopping");
+    for (int i = 0; i < MAX_CLIENTS; i++)
+        if (cl[i].fd >= 0) client_close(a, &cl[i]);
+    if (strncmp(spec, "unix:", 5) == 0) unlink(spec + 5);
+    return 0;
+fail:
+    for (int i = 0; i < MAX_CLIENTS; i++)
+        if (cl[i].fd >= 0) client_close(a, &cl[i]);
+    if (strncmp(spec, "unix:", 5) == 0) unlink(spec + 5);
+    return -1;
+}
+
+/* Sleep up to ms, waking early on a signal. */
+static void nap(int ms)
+{
+    struct pollfd p = {sig_pipe[0], POLLIN, 0};
+    if (ms <= 0 || got_stop) return;
+    if (poll(&p, 1, ms) > 0) drain_sig_pipe();
+}
+
+int continuous_run(app *a, char *err)
+{
+    sbuf s;
+    unsigned long n = 0;
+    sb_init(&s);
+    while (!got_stop && (a->cfg->count == 0 || n < (unsigned long)a->cfg->count)) {
+        pi_result r;
+        char e[PI_ERR_LEN];
+        struct timespec ts;
+        int ok;
+        if (got_hup) {
+            got_hup = 0;
+            if (app_reload(a, e) < 0) log_msg("SIGHUP: reload failed, keeping the old model: %s", e);
+            else log_msg("SIGHUP: reloaded %s", a->cfg->model);
+        }
+        ok = pi_infer_camera(a->ctx, a->cam, &r, e) == 0;
+        if (got_stop) break;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        sb_reset(&s);
+        sb_printf(&s, "{\"frame\": %lu, \"time\": %.3f, ", n, ts.tv_sec + ts.tv_nsec / 1e9);
+        if (ok) {
+            /* splice the result object's members after ours */
+            sbuf t;
+            sb_init(&t);
+            result_json(&t, NULL, NULL, &r, a->cfg->timings);
+            sb_puts(&s, t.buf ? t.buf + 1 : "}");
+            sb_free(&t);
+        } else {
+            sb_puts(&s, "\"error\": ");
+            sb_json_str(&s, e);
+            sb_puts(&s, "}");
+        }
+        record(a, ok, ok ? r.total_ms : 0);
+        if (s.buf) {
+            fputs(s.buf, stdout);
+            fputc('\n', stdout);
+            fflush(stdout);
+        }
+        n++;
+        /* After an error, never spin: wait at least 100 ms. */
+        nap(ok ? a->cfg->interval_ms : (a->cfg->interval_ms > 100 ? a->cfg->interval_ms : 100));
+    }
+    sb_free(&s);
+    (void)err;
+    return 0;
+}

@@ -1,0 +1,429 @@
+// shim.cpp -- OpenCV behind a C interface (shim.h). Every entry point
+// catches everything: no C++ exception ever reaches C code.
+#include "shim.h"
+
+#include <algorithm>
+#include <climits>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
+
+struct shim_mat {
+    cv::Mat m;
+};
+
+struct shim_cap {
+    cv::VideoCapture cap;
+    cv::Mat frame;
+    std::string spec;
+};
+
+static void seterr(char *err, const char *call, const char *why)
+{
+    if (err) snprintf(err, PI_ERR_LEN, "%s: %s", call, why);
+}
+
+// OpenCV exception text is multi-line ("OpenCV(4.6.0) file:line: error: ...");
+// keep the part after "error: " on one line.
+static void seterr_cv(char *err, const char *call, const cv::Exception &e)
+{
+    std::string msg = e.err.empty() ? e.what() : e.err;
+    std::replace(msg.begin(), msg.end(), '\n', ' ');
+    seterr(err, call, msg.c_str());
+}
+
+#define SHIM_CATCH(call)                                                  \
+    catch (const cv::Exception &e) { seterr_cv(err, call, e); }          \
+    catch (const std::bad_alloc &) { seterr(err, call, "out of memory"); } \
+    catch (const std::exception &e) { seterr(err, call, e.what()); }     \
+    catch (...) { seterr(err, call, "unknown C++ exception"); }
+
+extern "C" void pp_defaults(pp_params *p)
+{
+    p->size = 128;
+    p->margin = 1.15;
+    p->fg_threshold = 40;
+    p->border_frac = 0.02;
+    p->close_frac = 0.03;
+    p->min_area_frac = 0.002;
+    p->mean[0] = 0.485f; p->mean[1] = 0.456f; p->mean[2] = 0.406f;
+    p->std[0] = 0.229f; p->std[1] = 0.224f; p->std[2] = 0.225f;
+}
+
+extern "C" shim_mat *shim_mat_new(void)
+{
+    try { return new shim_mat(); } catch (...) { return nullptr; }
+}
+
+extern "C" void shim_mat_free(shim_mat *m) { delete m; }
+
+// ---- header probing: refuse huge images before allocating them -------------
+
+static unsigned long be32(const unsigned char *p)
+{
+    return ((unsigned long)p[0] << 24) | ((unsigned long)p[1] << 16) | ((unsigned long)p[2] << 8) | p[3];
+}
+
+static long le32s(const unsigned char *p)
+{
+    unsigned long u = (unsigned long)p[0] | ((unsigned long)p[1] << 8) |
+                      ((unsigned long)p[2] << 16) | ((unsigned long)p[3] << 24);
+    return u >= 0x80000000UL ? -(long)(0x100000000UL - u) : (long)u;
+}
+
+// PNM header: magic, then width, height as ASCII with comments.
+static int pnm_ints(const unsigned char *buf, size_t len, long *w, long *h)
+{
+    size_t i = 2;
+    long v[2];
+    for (int k = 0; k < 2; k++) {
+        for (;;) {
+            while (i < len && isspace(buf[i])) i++;
+            if (i < len && buf[i] == '#') { while (i < len && buf[i] != '\n') i++; continue; }
+            break;
+        }
+        if (i >= len || !isdigit(buf[i])) return -1;
+        v[k] = 0;
+        while (i < len && isdigit(buf[i])) {
+            if (v[k] > 100000000L) return -1;
+            v[k] = v[k] * 10 + (buf[i++] - '0');
+        }
+    }
+    *w = v[0];
+    *h = v[1];
+    return 0;
+}
+
+extern "C" int shim_probe_size(const unsigned char *buf, size_t len, long *w, long *h, char *err)
+{
+    static const unsigned char png_sig[8] = {0x89, 'P', 'N', 'G', 0x0d, 0x0a, 0x1a, 0x0a};
+    if (len >= 8 && memcmp(buf, png_sig, 8) == 0) {
+        if (len < 24 || memcmp(buf + 12, "IHDR", 4) != 0) {
+            seterr(err, "decode", "PNG header truncated or corrupt");
+            return -1;
+        }
+        *w = (long)be32(buf + 16);
+        *h = (long)be32(buf + 20);
+        return 0;
+    }
+    if (len >= 3 && buf[0] == 0xff && buf[1] == 0xd8 && buf[2] == 0xff) {
+        // A JPEG cut short still decodes (libjpeg pads it with gray and
+        // warns); a frame with missing rows is no measurement, so refuse it.
+        size_t tail = len > 64 ? len - 64 : 2, i;
+        for (i = len - 1; i > tail; i--)
+            if (buf[i - 1] == 0xff && buf[i] == 0xd9) break;
+        if (i <= tail) {
+            seterr(err, "decode", "truncated JPEG (no end-of-image marker)");
+            return -1;
+        }
+        i = 2;
+        while (i + 9 < len) {
+            if (buf[i] != 0xff) { i++; continue; }
+            unsigned char mk = buf[i + 1];
+            if (mk == 0xff) { i++; continue; }
+            if (mk == 0xd8 || mk == 0x01 || (mk >= 0xd0 && mk <= 0xd7)) { i += 2; continue; }
+            size_t seglen = ((size_t)buf[i + 2] << 8) | buf[i + 3];
+            if (mk >= 0xc0 && mk <= 0xcf && mk != 0xc4 && mk != 0xc8 && mk != 0xcc) {
+                *h = ((long)buf[i + 5] << 8) | buf[i + 6];
+                *w = ((long)buf[i + 7] << 8) | buf[i + 8];
+                return 0;
+            }
+            if (seglen < 2) break;
+            i += 2 + seglen;
+        }
+        return 1;
+    }
+    if (len >= 26 && buf[0] == 'B' && buf[1] == 'M') {
+        *w = std::labs(le32s(buf + 18));
+        *h = std::labs(le32s(buf + 22));
+        return 0;
+    }
+    if (len >= 3 && buf[0] == 'P' && buf[1] >= '1' && buf[1] <= '6') {
+        if (pnm_ints(buf, len, w, h) < 0) {
+            seterr(err, "decode", "PNM header corrupt");
+            return -1;
+        }
+        return 0;
+    }
+    return 1;
+}
+
+extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels,
+                           pi_frame *out, char *err)
+{
+    try {
+        long w = 0, h = 0;
+        char why[128];
+        if (len == 0) { seterr(err, "decode", "empty file"); return -1; }
+        if (len > (size_t)INT_MAX) { seterr(err, "decode", "file too large"); return -1; }
+        int pr = shim_probe_size((const unsigned char *)buf, len, &w, &h, err);
+        if (pr < 0) return -1;
+        if (pr == 0 && (double)w * (double)h > (double)max_pixels) {
+            snprintf(why, sizeof why, "image is %ldx%ld, over the limit of %ld pixels", w, h, max_pixels);
+            seterr(err, "decode", why);
+            return -1;
+        }
+        cv::Mat raw(1, (int)len, CV_8U, const_cast<void *>(buf));
+        m->m.release();
+        cv::imdecode(raw, cv::IMREAD_UNCHANGED, &m->m);
+        if (m->m.empty()) {
+            seterr(err, "decode", "cannot decode image (corrupt, truncated or not an image)");
+            return -1;
+        }
+        if (m->m.depth() != CV_8U) {
+            seterr(err, "decode", "expected 8-bit pixels");
+            m->m.release();
+            return -1;
+        }
+        if ((double)m->m.cols * m->m.rows > (double)max_pixels) {
+            snprintf(why, sizeof why, "image is %dx%d, over the limit of %ld pixels", m->m.cols, m->m.rows, max_pixels);
+            seterr(err, "decode", why);
+            m->m.release();
+            return -1;
+        }
+        int ch = m->m.channels();
+        if (ch == 2) cv::cvtColor(m->m, m->m, cv::COLOR_GRAY2BGR); // unusual; keep 8-bit BGR
+        out->data = m->m.data;
+        out->width = m->m.cols;
+        out->height = m->m.rows;
+        out->channels = m->m.channels();
+        out->stride = m->m.step[0];
+        out->decode_ms = 0;
+        return 0;
+    }
+    SHIM_CATCH("decode")
+    return -1;
+}
+
+// ---- preprocessing "sphere-crop-v1" (docs/interfaces.md) -------------------
+
+// Median of a histogram of n values: the mean of the two middle values for
+// an even count, as numpy.median.
+static double hist_median(const unsigned long hist[256], unsigned long n)
+{
+    unsigned long lo = (n - 1) / 2, hi = n / 2, acc = 0;
+    int vlo = -1, vhi = -1;
+    for (int v = 0; v < 256; v++) {
+        acc += hist[v];
+        if (vlo < 0 && acc > lo) vlo = v;
+        if (vhi < 0 && acc > hi) { vhi = v; break; }
+    }
+    return (vlo + vhi) / 2.0;
+}
+
+static void add_rows(const cv::Mat &bgr, int r0, int r1, int c0, int c1,
+                     unsigned long hist[3][256], unsigned long *n)
+{
+    for (int r = r0; r < r1; r++) {
+        const unsigned char *p = bgr.ptr<unsigned char>(r) + 3 * c0;
+        for (int c = c0; c < c1; c++, p += 3) {
+            hist[0][p[0]]++;
+            hist[1][p[1]]++;
+            hist[2][p[2]]++;
+        }
+        *n += (unsigned long)(c1 - c0);
+    }
+}
+
+extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out,
+                               pp_circle *circ, char *err)
+{
+    try {
+        const int h = f->height, w = f->width, S = p->size;
+        if (!f->data || h < 8 || w < 8 || (f->channels != 1 && f->channels != 3 && f->channels != 4)) {
+            seterr(err, "preprocess", "frame too small or not 1, 3 or 4 channels of 8 bits");
+            return -1;
+        }
+        size_t stride = f->stride ? f->stride : (size_t)w * f->channels;
+        cv::Mat src(h, w, CV_8UC(f->channels), const_cast<uint8_t *>(f->data), stride);
+        cv::Mat bgr;
+        if (f->channels == 1) cv::cvtColor(src, bgr, cv::COLOR_GRAY2BGR);
+        else if (f->channels == 4) cv::cvtColor(src, bgr, cv::COLOR_BGRA2BGR);
+        else bgr = src;
+
+        // 1. Background: per-channel median of the border band.
+        const int mn = std::min(h, w);
+        const int b = std::max(2, (int)std::floor(p->border_frac * mn + 0.5));
+        unsigned long hist[3][256] = {{0}}, n = 0;
+        const int bb = std::min(b, h / 2), bc = std::min(b, w / 2);
+        add_rows(bgr, 0, bb, 0, w, hist, &n);
+        add_rows(bgr, h - bb, h, 0, w, hist, &n);
+        add_rows(bgr, bb, h - bb, 0, bc, hist, &n);
+        add_rows(bgr, bb, h - bb, w - bc, w, hist, &n);
+        double bg[3];
+        for (int c = 0; c < 3; c++) bg[c] = hist_median(hist[c], n);
+
+        // 2. Foreground: max_c |I_c - bg_c| > threshold, i.e. any channel
+        //    over it; one lookup table per channel.
+        unsigned char over[3][256];
+        for (int c = 0; c < 3; c++)
+            for (int v = 0; v < 256; v++)
+                over[c][v] = std::fabs((double)v - bg[c]) > p->fg_threshold ? 255 : 0;
+        cv::Mat mask(h, w, CV_8U);
+        for (int r = 0; r < h; r++) {
+            const unsigned char *s = bgr.ptr<unsigned char>(r);
+            unsigned char *d = mask.ptr<unsigned char>(r);
+            for (int c = 0; c < w; c++, s += 3) d[c] = over[0][s[0]] | over[1][s[1]] | over[2][s[2]];
+        }
+
+        // 3. Close with an elliptic kernel.
+        const int k = 2 * (int)std::floor(p->close_frac * mn / 2) + 1;
+        if (k > 1) {
+            cv::Mat kernel = cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k));
+            cv::morphologyEx(mask, mask, cv::MORPH_CLOSE, kernel);
+        }
+
+        // 4. Largest external contour (first on ties).
+        std::vector<std::vector<cv::Point>> contours;
+        cv::findContours(mask, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
+        int best = -1;
+        double best_area = -1.0;
+        for (size_t i = 0; i < contours.size(); i++) {
+            double a = cv::contourArea(contours[i]);
+            if (a > best_area) { best = (int)i; best_area = a; }
+        }
+        if (best < 0 || best_area < p->min_area_frac * h * w) {
+            seterr(err, "preprocess", "no sphere found in frame");
+            return -1;
+        }
+
+        // 5. Enclosing circle.
+        cv::Point2f centre;
+        float radius;
+        cv::minEnclosingCircle(contours[best], centre, radius);
+        const double cx = centre.x, cy = centre.y, r = radius;
+
+        // 6. Square crop; outside the frame is bg. Equivalent to
+        //    copyMakeBorder + ROI, without copying the whole frame.
+        const double half = r * p->margin;
+        const long x0 = (long)std::floor(cx - half + 0.5);
+        const long y0 = (long)std::floor(cy - half + 0.5);
+        const long side = std::max(1L, (long)std::floor(2 * half + 0.5));
+        if (side > 65536) {
+            seterr(err, "preprocess", "sphere too large");
+            return -1;
+        }
+        cv::Scalar fill;
+        for (int c = 0; c < 3; c++) fill[c] = std::min(255.0, std::max(0.0, std::floor(bg[c] + 0.5)));
+        cv::Mat roi;
+        const long ix0 = std::max(0L, x0), iy0 = std::max(0L, y0);
+        const long ix1 = std::min((long)w, x0 + side), iy1 = std::min((long)h, y0 + side);
+        if (x0 >= 0 && y0 >= 0 && ix1 == x0 + side && iy1 == y0 + side) {
+            roi = bgr(cv::Rect((int)x0, (int)y0, (int)side, (int)side));
+        } else {
+            roi = cv::Mat((int)side, (int)side, CV_8UC3, fill);
+            if (ix1 > ix0 && iy1 > iy0)
+                bgr(cv::Rect((int)ix0, (int)iy0, (int)(ix1 - ix0), (int)(iy1 - iy0)))
+                    .copyTo(roi(cv::Rect((int)(ix0 - x0), (int)(iy0 - y0), (int)(ix1 - ix0), (int)(iy1 - iy0))));
+        }
+
+        // 7. Resize.
+        cv::Mat small;
+        cv::resize(roi, small, cv::Size(S, S), 0, 0, cv::INTER_AREA);
+
+        // 8. BGR -> RGB, /255, (v - mean) / std, CHW. Same float32 operations
+        //    in the same order as the Python reference, through a table.
+        float lut[3][256];
+        for (int c = 0; c < 3; c++)
+            for (int v = 0; v < 256; v++) {
+                float t = (float)v / 255.0f;
+                t = t - p->mean[c];
+                lut[c][v] = t / p->std[c];
+            }
+        const size_t plane = (size_t)S * S;
+        for (int y = 0; y < S; y++) {
+            const unsigned char *s = small.ptr<unsigned char>(y);
+            float *dr = out + (size_t)y * S, *dg = dr + plane, *db = dg + plane;
+            for (int x = 0; x < S; x++, s += 3) {
+                dr[x] = lut[0][s[2]];
+                dg[x] = lut[1][s[1]];
+                db[x] = lut[2][s[0]];
+            }
+        }
+        circ->cx = cx;
+        circ->cy = cy;
+        circ->r = r;
+        for (int c = 0; c < 3; c++) circ->bg[c] = bg[c];
+        return 0;
+    }
+    SHIM_CATCH("preprocess")
+    return -1;
+}
+
+extern "C" int shim_save(const pi_frame *f, const char *path, char *err)
+{
+    try {
+        size_t stride = f->stride ? f->stride : (size_t)f->width * f->channels;
+        cv::Mat m(f->height, f->width, CV_8UC(f->channels), const_cast<uint8_t *>(f->data), stride);
+        if (!cv::imwrite(path, m)) {
+            seterr(err, "imwrite", "cannot write (unknown extension or unwritable path)");
+            return -1;
+        }
+        return 0;
+    }
+    SHIM_CATCH("imwrite")
+    return -1;
+}
+
+// ---- VideoCapture ------------------------------------------------------------
+
+extern "C" shim_cap *shim_cap_open(const char *spec, char *err)
+{
+    shim_cap *c = nullptr;
+    try {
+        c = new shim_cap();
+        c->spec = spec;
+        bool ok;
+        char *end = nullptr;
+        long idx = strtol(spec, &end, 10);
+        if (*spec && end && *end == '\0') {
+            ok = c->cap.open((int)idx, cv::CAP_V4L2);
+        } else if (strncmp(spec, "/dev/", 5) == 0) {
+            ok = c->cap.open(std::string(spec), cv::CAP_V4L2);
+        } else if (strncmp(spec, "gst:", 4) == 0) {
+            ok = c->cap.open(std::string(spec + 4), cv::CAP_GSTREAMER);
+        } else {
+            seterr(err, "camera", "unknown source; expected /dev/videoN, an index, gst:<pipeline> or unix:<path>");
+            delete c;
+            return nullptr;
+        }
+        if (!ok || !c->cap.isOpened()) {
+            if (err) snprintf(err, PI_ERR_LEN, "VideoCapture(%s): cannot open", spec);
+            delete c;
+            return nullptr;
+        }
+        return c;
+    }
+    SHIM_CATCH("VideoCapture")
+    delete c;
+    return nullptr;
+}
+
+extern "C" int shim_cap_grab(shim_cap *c, pi_frame *out, char *err)
+{
+    try {
+        if (!c->cap.read(c->frame) || c->frame.empty()) {
+            if (err) snprintf(err, PI_ERR_LEN, "VideoCapture(%s): no frame", c->spec.c_str());
+            return -1;
+        }
+        if (c->frame.depth() != CV_8U) c->frame.convertTo(c->frame, CV_8U);
+        out->data = c->frame.data;
+        out->width = c->frame.cols;
+        out->height = c->frame.rows;
+        out->channels = c->frame.channels();
+        out->stride = c->frame.step[0];
+        out->decode_ms = 0;
+        return 0;
+    }
+    SHIM_CATCH("VideoCapture.read")
+    return -1;
+}
+
+extern "C" void shim_cap_close(shim_cap *c) { delete c; }
