@@ -25,10 +25,10 @@ Script lines (one directive each; '#' starts a comment line):
                    polls (default 2) then Idle at the target, 0x18 -> banner
   end              the script is over: further lines from the host fail
 
-Exit status (on SIGTERM or when the script ends with close): 0 when every
-expectation held and the script ran to its end, 1 on a failed expectation
-(printed on stderr, and the pty is closed at once), 2 when stopped before the
-script's end.
+Exit status (after SIGTERM, or at "close"): 0 when every expectation held and
+the script ran to its end, 1 on a failed expectation (printed on stderr, and
+the pty is closed at once), 2 when stopped while the script still waited for
+the host.
 """
 import os
 import random
@@ -59,6 +59,8 @@ class Fake:
         self.timeout = 5.0
         self.ended = False
         self.auto = None
+        self.stopping = False
+        self.done = False
 
     def write(self, data):
         os.write(self.master, data)
@@ -108,10 +110,16 @@ class Fake:
     def wait(self, pred, what):
         deadline = time.monotonic() + self.timeout
         while not pred():
+            if self.stopping:
+                # Stopped while still waiting for the host: the script did
+                # not run to its end.
+                sys.stderr.write("rig_fake: stopped at script line %d of %d, waiting for %s\n"
+                                 % (self.pc, len(self.lines), what))
+                os._exit(2)
             left = deadline - time.monotonic()
             if left <= 0:
                 self.fail("timed out waiting for %s" % what)
-            self.pump(left)
+            self.pump(min(left, 0.05))
 
     def next_line(self, what):
         self.wait(lambda: self.rx_lines, what)
@@ -203,7 +211,7 @@ class Fake:
                 self.wait(lambda: self.polls >= target, "%s status queries" % arg)
             elif op == "sleep":
                 end = time.monotonic() + int(arg) / 1000.0
-                while time.monotonic() < end:
+                while time.monotonic() < end and not self.stopping:
                     self.pump(end - time.monotonic())
             elif op == "timeout":
                 self.timeout = int(arg) / 1000.0
@@ -227,8 +235,8 @@ class Fake:
                 self.fail("unknown directive %r" % op)
         self.pc = len(self.lines) + 1
         self.done = True
-        while True:
-            self.pump(1.0)
+        while not self.stopping:
+            self.pump(0.05)
             if self.ended and self.rx_lines:
                 self.fail("unexpected line after the end of the script: %r" % self.rx_lines[0])
 
@@ -240,19 +248,19 @@ def main():
     src = sys.stdin if sys.argv[1] == "-" else open(sys.argv[1], encoding="utf-8")
     lines = src.read().splitlines()
     fake = Fake(lines)
-    fake.done = False
 
     def on_term(signum, frame):
-        if not fake.done:
-            sys.stderr.write("rig_fake: stopped at script line %d of %d\n" % (fake.pc, len(lines)))
-            os._exit(2)
-        os._exit(0)
+        # Finish the directives that need nothing from the host (the client
+        # may have its reply and be gone before the fake reached "end");
+        # a wait for the host then stops the run with status 2.
+        fake.stopping = True
 
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
     sys.stdout.write("PTY %s\n" % fake.path)
     sys.stdout.flush()
     fake.run()
+    return 0
 
 
 if __name__ == "__main__":
