@@ -1,0 +1,270 @@
+/* rig_report.c -- see rig_report.h. */
+#define _DEFAULT_SOURCE
+#include "rig_report.h"
+#include "rig_plan.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+/* Open path.tmp for writing; rig_commit renames it over path. */
+static FILE *atomic_open(const char *path, char *tmp, size_t tmplen, char *err) {
+    FILE *f;
+    snprintf(tmp, tmplen, "%s.tmp", path);
+    if (!(f = fopen(tmp, "w")))
+        snprintf(err, RIG_ERR_LEN, "fopen(%s): %s", tmp, strerror(errno));
+    return f;
+}
+
+static int atomic_commit(FILE *f, const char *tmp, const char *path, char *err) {
+    /* fsync before rename: after a crash the file is the old or the new
+     * one, never an empty new name. */
+    if (fflush(f) != 0 || ferror(f) || fsync(fileno(f)) != 0) {
+        snprintf(err, RIG_ERR_LEN, "write(%s): %s", tmp, strerror(errno));
+        fclose(f);
+        unlink(tmp);
+        return -1;
+    }
+    if (fclose(f) != 0) {
+        snprintf(err, RIG_ERR_LEN, "fclose(%s): %s", tmp, strerror(errno));
+        unlink(tmp);
+        return -1;
+    }
+    if (rename(tmp, path) != 0) {
+        snprintf(err, RIG_ERR_LEN, "rename(%s): %s", path, strerror(errno));
+        unlink(tmp);
+        return -1;
+    }
+    return 0;
+}
+
+/* CSV field: the status text may hold commas or quotes. */
+static void csv_text(FILE *f, const char *s) {
+    fputc('"', f);
+    for (; *s; s++) {
+        if (*s == '"') fputc('"', f);
+        fputc(*s == '\n' || *s == '\r' ? ' ' : *s, f);
+    }
+    fputc('"', f);
+}
+
+int rig_write_csv(const char *path, const rig_row *rows, int n, char *err) {
+    char tmp[4096];
+    FILE *f = atomic_open(path, tmp, sizeof(tmp), err);
+    int i;
+    if (!f) return -1;
+    fputs("index,cmd_x,cmd_y,cmd_z,mpos_x,mpos_y,mpos_z,wpos_x,wpos_y,wpos_z,"
+          "est_x,est_y,est_z,err_x,err_y,err_z,geodesic,"
+          "sphere_cx,sphere_cy,sphere_r,"
+          "move_ms,settle_ms,grab_ms,decode_ms,preprocess_ms,infer_ms,pose_ms,status,frame\n", f);
+    for (i = 0; i < n; i++) {
+        const rig_row *r = &rows[i];
+        fprintf(f, "%d,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,%.3f,", r->index,
+                r->cmd[0], r->cmd[1], r->cmd[2], r->mpos[0], r->mpos[1], r->mpos[2],
+                r->wpos[0], r->wpos[1], r->wpos[2]);
+        if (r->ok)
+            fprintf(f, "%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.1f,%.1f,%.1f,", r->est[0], r->est[1],
+                    r->est[2], r->err[0], r->err[1], r->err[2], r->geo, r->cx, r->cy, r->r);
+        else
+            fputs(",,,,,,,,,,", f);
+        fprintf(f, "%.1f,%.1f,%.1f,%.2f,%.2f,%.2f,%.1f,", r->move_ms, r->settle_ms, r->grab_ms,
+                r->decode_ms, r->preprocess_ms, r->infer_ms, r->pose_ms);
+        csv_text(f, r->status);
+        fputc(',', f);
+        fputs(r->frame, f);
+        fputc('\n', f);
+    }
+    return atomic_commit(f, tmp, path, err);
+}
+
+int rig_summarise_rows(const rig_row *rows, int n, rig_summary *s, char *err) {
+    double *e = malloc((size_t)(n > 0 ? n : 1) * 3 * sizeof(double));
+    double *g = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
+    int i, k = 0, rc = 0;
+    if (!e || !g) {
+        snprintf(err, RIG_ERR_LEN, "rig_summarise_rows: out of memory");
+        rc = -1;
+        goto out;
+    }
+    for (i = 0; i < n; i++) {
+        if (!rows[i].ok) continue;
+        memcpy(e + 3 * k, rows[i].err, 3 * sizeof(double));
+        g[k] = rows[i].geo;
+        k++;
+    }
+    if (rig_summarise(e, g, k, s) != 0) {
+        snprintf(err, RIG_ERR_LEN, "rig_summarise: out of memory");
+        rc = -1;
+    }
+out:
+    free(e);
+    free(g);
+    return rc;
+}
+
+static const char *axis_name[3] = {"X-axis", "Y-axis", "Z-axis"};
+
+void rig_print_summary(FILE *out, const rig_run_info *info, const rig_summary *s) {
+    int a;
+    fprintf(out, "Error analysis of %d pose(s) (degrees; %d planned, %d failed%s%s)\n", s->n,
+            info->planned, info->failed, info->stopped ? "; stopped: " : "",
+            info->stopped ? info->stopped : "");
+    fprintf(out, "%-10s %10s %9s %9s %9s\n", "Parameter", "Mean Error", "Std", "RMSE", "Maximum");
+    for (a = 0; a < 3; a++)
+        fprintf(out, "%-10s %10.3f %9.3f %9.3f %9.3f\n", axis_name[a], s->axis[a].err,
+                s->axis[a].std, s->axis[a].rmse, s->axis[a].max);
+    fprintf(out, "%-10s %10.3f %9.3f %9.3f %9.3f\n", "Geodesic", s->geo.err, s->geo.std,
+            s->geo.rmse, s->geo.max);
+    fprintf(out, "MAE %.3f  RMSE %.3f\n", s->mae, s->rmse);
+}
+
+static int cmp_double(const void *a, const void *b) {
+    double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+/* p50 and p99 of one timing column over the measured rows. */
+static void timing(const rig_row *rows, int n, size_t off, double *p50, double *p99) {
+    double *v = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
+    int i, k = 0;
+    *p50 = *p99 = 0;
+    if (!v) return;
+    for (i = 0; i < n; i++)
+        if (rows[i].ok) v[k++] = *(const double *)((const char *)&rows[i] + off);
+    qsort(v, (size_t)k, sizeof(double), cmp_double);
+    *p50 = rig_percentile(v, k, 50);
+    *p99 = rig_percentile(v, k, 99);
+    free(v);
+}
+
+int rig_write_summary_md(const char *path, const rig_run_info *info, const rig_summary *s,
+                         const rig_row *rows, int n, char *err) {
+    static const struct { const char *name; size_t off; } cols[] = {
+        {"move + wait Idle", offsetof(rig_row, move_ms)},
+        {"settle", offsetof(rig_row, settle_ms)},
+        {"grab", offsetof(rig_row, grab_ms)},
+        {"decode", offsetof(rig_row, decode_ms)},
+        {"preprocess", offsetof(rig_row, preprocess_ms)},
+        {"inference", offsetof(rig_row, infer_ms)},
+        {"whole pose", offsetof(rig_row, pose_ms)},
+    };
+    char tmp[4096];
+    FILE *f = atomic_open(path, tmp, sizeof(tmp), err);
+    size_t c;
+    int a;
+    if (!f) return -1;
+    fprintf(f, "# Rig experiment\n\n");
+    fprintf(f, "| | |\n| --- | --- |\n");
+    fprintf(f, "| started (UTC) | %s |\n| stage port | `%s` |\n| camera | `%s` |\n| model | `%s` |\n",
+            info->started, info->port, info->camera, info->model);
+    fprintf(f, "| plan | %s |\n| poses planned / measured / failed | %d / %d / %d |\n", info->plan,
+            info->planned, s->n, info->failed);
+    fprintf(f, "| settle time | %d ms |\n| run time | %.1f s |\n", info->settle_ms, info->elapsed_s);
+    if (info->stopped) fprintf(f, "| stopped early | %s |\n", info->stopped);
+    fprintf(f, "\n## Error analysis (degrees)\n\n"
+               "Errors e = |wrap(estimate - commanded)| per axis; Err the mean, Std the population\n"
+               "standard deviation, RMSE = sqrt(mean(e^2)) (shared/spec/conventions.md).\n\n");
+    fprintf(f, "| Parameter | Mean Error | Std | RMSE | Maximum |\n| --- | ---: | ---: | ---: | ---: |\n");
+    for (a = 0; a < 3; a++)
+        fprintf(f, "| %s | %.3f | %.3f | %.3f | %.3f |\n", axis_name[a], s->axis[a].err,
+                s->axis[a].std, s->axis[a].rmse, s->axis[a].max);
+    fprintf(f, "| Geodesic | %.3f | %.3f | %.3f | %.3f |\n", s->geo.err, s->geo.std, s->geo.rmse,
+            s->geo.max);
+    fprintf(f, "\nMAE %.3f, RMSE %.3f over all poses and axes.\n", s->mae, s->rmse);
+    fprintf(f, "\n![box plot of the per-axis errors](boxplot.svg)\n");
+    fprintf(f, "\n## Timings per pose (ms, measured poses)\n\n| step | p50 | p99 |\n| --- | ---: | ---: |\n");
+    for (c = 0; c < sizeof(cols) / sizeof(cols[0]); c++) {
+        double p50, p99;
+        timing(rows, n, cols[c].off, &p50, &p99);
+        fprintf(f, "| %s | %.1f | %.1f |\n", cols[c].name, p50, p99);
+    }
+    if (info->failed) {
+        int i, shown = 0;
+        fprintf(f, "\n## Poses without an estimate\n\n");
+        for (i = 0; i < n && shown < 20; i++) {
+            if (rows[i].ok) continue;
+            fprintf(f, "- pose %d (%.3f, %.3f, %.3f): %s\n", rows[i].index, rows[i].cmd[0],
+                    rows[i].cmd[1], rows[i].cmd[2], rows[i].status);
+            shown++;
+        }
+        if (info->failed > shown) fprintf(f, "- ... and %d more (poses.csv)\n", info->failed - shown);
+    }
+    return atomic_commit(f, tmp, path, err);
+}
+
+int rig_write_boxplot_svg(const char *path, const rig_summary *s, const rig_row *rows, int n,
+                          char *err) {
+    static const char *names[4] = {"X", "Y", "Z", "geodesic"};
+    static const char *fills[4] = {"#4e79a7", "#f28e2b", "#59a14f", "#9c9c9c"};
+    const double W = 640, H = 420, L = 60, R = 20, T = 40, B = 50;
+    char tmp[4096];
+    FILE *f;
+    double top = 0, step, scale, bw;
+    int a, i;
+
+    for (a = 0; a < 3; a++)
+        if (s->axis[a].max > top) top = s->axis[a].max;
+    if (s->geo.max > top) top = s->geo.max;
+    /* A round axis top: 1, 2 or 5 times a power of ten, per tick. */
+    {
+        double raw = (top > 0 ? top : 1) / 5, p = pow(10, floor(log10(raw)));
+        step = raw / p <= 1 ? p : raw / p <= 2 ? 2 * p : raw / p <= 5 ? 5 * p : 10 * p;
+        top = step * ceil((top > 0 ? top : 1) / step);
+    }
+    scale = (H - T - B) / top;
+    bw = (W - L - R) / 4;
+    if (!(f = atomic_open(path, tmp, sizeof(tmp), err))) return -1;
+    fprintf(f, "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%.0f\" height=\"%.0f\" "
+               "viewBox=\"0 0 %.0f %.0f\" font-family=\"sans-serif\" font-size=\"12\">\n", W, H, W, H);
+    fprintf(f, "<rect width=\"100%%\" height=\"100%%\" fill=\"white\"/>\n");
+    fprintf(f, "<text x=\"%.0f\" y=\"22\" text-anchor=\"middle\" font-size=\"15\">"
+               "Pose error per axis, degrees (n = %d)</text>\n", W / 2, s->n);
+    for (i = 0; step * i <= top + 1e-9; i++) {
+        double y = H - B - step * i * scale;
+        fprintf(f, "<line x1=\"%.0f\" y1=\"%.1f\" x2=\"%.0f\" y2=\"%.1f\" stroke=\"#ddd\"/>\n", L, y, W - R, y);
+        fprintf(f, "<text x=\"%.0f\" y=\"%.1f\" text-anchor=\"end\">%g</text>\n", L - 6, y + 4, step * i);
+    }
+    fprintf(f, "<line x1=\"%.0f\" y1=\"%.0f\" x2=\"%.0f\" y2=\"%.0f\" stroke=\"black\"/>\n", L, T, L, H - B);
+    fprintf(f, "<text transform=\"translate(16,%.0f) rotate(-90)\" text-anchor=\"middle\">"
+               "|error| (deg)</text>\n", (H - B + T) / 2);
+    for (a = 0; a < 4; a++) {
+        const rig_axis_stats *st = a < 3 ? &s->axis[a] : &s->geo;
+        double cx = L + bw * (a + 0.5), hw = bw * 0.25;
+#define Y(v) (H - B - (v) * scale)
+        if (s->n > 0) {
+            /* Whiskers, box (Q1..Q3), median, mean, and outliers as circles. */
+            fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"black\"/>\n",
+                    cx, Y(st->whisk_lo), cx, Y(st->q1));
+            fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"black\"/>\n",
+                    cx, Y(st->q3), cx, Y(st->whisk_hi));
+            fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"black\"/>\n",
+                    cx - hw / 2, Y(st->whisk_lo), cx + hw / 2, Y(st->whisk_lo));
+            fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"black\"/>\n",
+                    cx - hw / 2, Y(st->whisk_hi), cx + hw / 2, Y(st->whisk_hi));
+            fprintf(f, "<rect x=\"%.1f\" y=\"%.1f\" width=\"%.1f\" height=\"%.1f\" fill=\"%s\" "
+                       "fill-opacity=\"0.6\" stroke=\"black\"/>\n",
+                    cx - hw, Y(st->q3), 2 * hw, (st->q3 - st->q1) * scale, fills[a]);
+            fprintf(f, "<line x1=\"%.1f\" y1=\"%.1f\" x2=\"%.1f\" y2=\"%.1f\" stroke=\"black\" "
+                       "stroke-width=\"2\"/>\n", cx - hw, Y(st->median), cx + hw, Y(st->median));
+            fprintf(f, "<path d=\"M %.1f %.1f l 5 5 l -5 5 l -5 -5 z\" fill=\"white\" stroke=\"black\">"
+                       "<title>mean %.3f</title></path>\n", cx, Y(st->err) - 5, st->err);
+            for (i = 0; i < n; i++) {
+                double v;
+                if (!rows[i].ok) continue;
+                v = a < 3 ? rows[i].err[a] : rows[i].geo;
+                if (v < st->whisk_lo || v > st->whisk_hi)
+                    fprintf(f, "<circle cx=\"%.1f\" cy=\"%.1f\" r=\"3\" fill=\"none\" stroke=\"black\">"
+                               "<title>pose %d: %.3f</title></circle>\n", cx, Y(v), rows[i].index, v);
+            }
+        }
+#undef Y
+        fprintf(f, "<text x=\"%.1f\" y=\"%.0f\" text-anchor=\"middle\">%s</text>\n", cx, H - B + 18, names[a]);
+    }
+    fprintf(f, "<text x=\"%.0f\" y=\"%.0f\" text-anchor=\"middle\" fill=\"#555\">box: quartiles, "
+               "line: median, diamond: mean, whiskers: 1.5 IQR</text>\n", W / 2, H - 12);
+    fputs("</svg>\n", f);
+    return atomic_commit(f, tmp, path, err);
+}
