@@ -1,0 +1,71 @@
+// Compile-time configuration of the stage firmware. Each option says why.
+#ifndef CONFIG_H
+#define CONFIG_H
+
+#define N_AXIS 3               // X rides on Y, which rides on Z (conventions.md)
+#define X_AXIS 0
+#define Y_AXIS 1
+#define Z_AXIS 2
+
+#define BAUD_RATE 115200UL     // GRBL 1.1 senders assume it
+#define RX_BUFFER_SIZE 128     // character-counting senders assume 128 (GRBL)
+#define TX_BUFFER_SIZE 64      // replies are short; a status report fits twice
+#define LINE_BUFFER_SIZE 81    // 80 characters + NUL, as GRBL
+
+// Planner look-ahead depth. GRBL uses 16 on the 328P; a rotation stage runs
+// few, long moves, and 10 keeps static RAM under 1.3 KB.
+#define BLOCK_BUFFER_SIZE 10
+#define SEGMENT_BUFFER_SIZE 6  // step segments prepared ahead (~60 ms at 100 Hz)
+
+// Segments are planned every 1/100 s of motion, like GRBL.
+#define ACCELERATION_TICKS_PER_SECOND 100
+#define REQ_MM_INCREMENT_SCALAR 1.25f
+
+#define MINIMUM_JUNCTION_SPEED 0.0f   // deg/min
+#define MINIMUM_FEED_RATE 1.0f        // deg/min; slower feeds are raised to it
+#define MAX_LINE_NUMBER 10000000L     // GRBL's N limit
+#define N_COORDINATE_SYSTEM 6         // G54..G59
+#define N_DECIMAL_COORDVALUE 3        // positions printed with 3 decimals (deg)
+#define N_DECIMAL_SETTINGVALUE 3
+#define DWELL_TIME_STEP_MS 50         // G4 and homing debounce poll realtime this often
+
+// Step timing. Timer1 in CTC mode: OCR1A is the step period, OCR1B ends the
+// pulse. Both are never 0 (simavr 1.6 never fires a CTC compare of 0), and
+// TCNT1 is never preloaded (starting the clock resets it in simavr).
+// The pulse starts a few cycles after the compare match (ISR entry); the
+// pulse-end compare is set this many cycles later so the pin stays high for
+// at least $0 microseconds.
+#define STEP_PULSE_LATENCY_CYCLES 64
+#define STEP_LOW_MIN_CYCLES 64        // minimum low time before the next pulse
+#define MAX_STEP_RATE_HZ 40000UL      // settings are refused above this ($100*$110/60)
+
+// Homing, as GRBL: seek, pull off, locate slowly, pull off.
+#define HOMING_AXIS_SEARCH_SCALAR 1.5f  // seek travel = 1.5 x max travel
+#define HOMING_AXIS_LOCATE_SCALAR 5.0f  // locate travel = 5 x pull-off
+#define N_HOMING_LOCATE_CYCLE 1
+#define HOMING_CYCLE_MASK ((1 << X_AXIS) | (1 << Y_AXIS) | (1 << Z_AXIS)) // independent stages home together
+
+// Status report refresh counts for the WCO and Ov fields (GRBL 1.1h values).
+#define REPORT_OVR_REFRESH_BUSY_COUNT 20
+#define REPORT_OVR_REFRESH_IDLE_COUNT 10
+#define REPORT_WCO_REFRESH_BUSY_COUNT 30
+#define REPORT_WCO_REFRESH_IDLE_COUNT 10
+
+#define GRBL_VERSION "1.1h"
+#define GRBL_VERSION_BUILD "20261122"
+#define FIRMWARE_NAME "spherepose stage"
+
+#if N_AXIS != 3
+#error "the pin map and reports are written for three axes"
+#endif
+#if RX_BUFFER_SIZE > 255 || TX_BUFFER_SIZE > 255
+#error "serial ring indices are 8-bit"
+#endif
+#if BLOCK_BUFFER_SIZE < 2 || SEGMENT_BUFFER_SIZE < 2
+#error "planner and segment buffers need at least two entries"
+#endif
+#if STEP_LOW_MIN_CYCLES < 32
+#error "step low time must cover the pulse-end interrupt"
+#endif
+
+#endif

@@ -1,0 +1,57 @@
+// Motion commands: the entry points from G-code into the planner.
+#include "motion.h"
+#include "config.h"
+#include "codes.h"
+#include "nuts.h"
+#include "system.h"    // sys, exec flags
+#include "settings.h"  // settings
+#include "protocol.h"  // protocol_execute_realtime, protocol_buffer_synchronize
+#include "stepper.h"   // st_go_idle
+#include "limits.h"    // limits_soft_check
+#include "board.h"     // board_idle
+
+void mc_line(const float *target, plan_line_data_t *pl_data)
+{
+  if (sys.state != STATE_JOG && bit_istrue(settings.flags, BITFLAG_SOFT_LIMIT_ENABLE)) limits_soft_check(target);
+  if (sys.state == STATE_CHECK_MODE) return;
+  uint8_t need = plan_backlash_blocks_needed(target);
+  for (;;) {
+    protocol_execute_realtime();
+    if (sys.abort) return;
+    if (plan_get_block_buffer_available() < need) protocol_auto_cycle_start();
+    else break;
+    board_idle();
+  }
+  plan_buffer_line(target, pl_data);
+}
+
+void mc_dwell(float seconds)
+{
+  if (sys.state == STATE_CHECK_MODE) return;
+  protocol_buffer_synchronize();
+  float ms = seconds * 1000.0f;
+  while (ms > 0 && !sys.abort) {
+    uint16_t chunk = ms > 60000.0f ? 60000 : (uint16_t)(ms + 0.5f);
+    if (chunk == 0) break;
+    delay_ms_rt(chunk);
+    ms -= chunk;
+  }
+}
+
+void mc_reset(void)
+{
+  if (bit_isfalse(sys_rt_exec_state, EXEC_RESET)) {
+    system_set_exec_state_flag(EXEC_RESET);
+    // Stop stepping now. Position stays what the step ISR counted, but a
+    // motor stopped mid-move without deceleration may have lost steps.
+    if ((sys.state & (STATE_CYCLE | STATE_HOMING | STATE_JOG)) ||
+        (sys.step_control & (STEP_CONTROL_EXECUTE_HOLD | STEP_CONTROL_EXECUTE_SYS_MOTION))) {
+      if (sys.state == STATE_HOMING) {
+        if (!sys_rt_exec_alarm) system_set_exec_alarm(EXEC_ALARM_HOMING_FAIL_RESET);
+      } else {
+        system_set_exec_alarm(EXEC_ALARM_ABORT_CYCLE);
+      }
+      st_go_idle();
+    }
+  }
+}

@@ -1,0 +1,288 @@
+// Look-ahead planner: a ring of linear moves with trapezoidal speed profiles.
+// The algorithm is GRBL's: junction deviation bounds the speed at each
+// corner, a reverse pass lowers entry speeds so every block can stop in time,
+// a forward pass limits them to what acceleration can reach.
+// Backlash (not in GRBL): when an axis reverses, a take-up block that moves
+// only the reversing axes by their $14x is queued first; its steps are not
+// counted in the machine position.
+#include <string.h>
+#include <math.h>
+#include "planner.h"
+#include "nuts.h"
+#include "settings.h"  // settings
+#include "system.h"    // sys_position
+#include "stepper.h"   // st_update_plan_block_parameters
+
+#define SOME_LARGE_VALUE 1.0e38f
+
+static plan_block_t block_buffer[BLOCK_BUFFER_SIZE];
+static uint8_t block_buffer_tail;    // block being executed
+static uint8_t block_buffer_head;    // next free block
+static uint8_t next_buffer_head;
+static uint8_t block_buffer_planned; // first block whose speed may still change
+
+static struct {
+  int32_t position[N_AXIS];          // planner position in steps (end of the last block)
+  float previous_unit_vec[N_AXIS];
+  float previous_nominal_speed;
+  uint8_t last_dir_bits;             // direction each axis last moved (for backlash)
+} pl;
+
+static uint8_t plan_next_block_index(uint8_t i)
+{
+  return (++i == BLOCK_BUFFER_SIZE) ? 0 : i;
+}
+
+static uint8_t plan_prev_block_index(uint8_t i)
+{
+  return (i == 0 ? BLOCK_BUFFER_SIZE : i) - 1;
+}
+
+void plan_reset(void)
+{
+  memset(&pl, 0, sizeof(pl));
+  block_buffer_tail = 0;
+  block_buffer_head = 0;
+  next_buffer_head = 1;
+  block_buffer_planned = 0;
+}
+
+static void planner_recalculate(void)
+{
+  uint8_t block_index = plan_prev_block_index(block_buffer_head);
+  if (block_index == block_buffer_planned) return;
+
+  float entry_speed_sqr;
+  plan_block_t *next;
+  plan_block_t *current = &block_buffer[block_index];
+  // The last block must be able to stop.
+  current->entry_speed_sqr = min(current->max_entry_speed_sqr, 2 * current->acceleration * current->millimeters);
+
+  block_index = plan_prev_block_index(block_index);
+  if (block_index == block_buffer_planned) {
+    if (block_index == block_buffer_tail) st_update_plan_block_parameters();
+  } else {
+    while (block_index != block_buffer_planned) {   // reverse pass
+      next = current;
+      current = &block_buffer[block_index];
+      block_index = plan_prev_block_index(block_index);
+      if (block_index == block_buffer_tail) st_update_plan_block_parameters();
+      if (current->entry_speed_sqr != current->max_entry_speed_sqr) {
+        entry_speed_sqr = next->entry_speed_sqr + 2 * current->acceleration * current->millimeters;
+        current->entry_speed_sqr = min(entry_speed_sqr, current->max_entry_speed_sqr);
+      }
+    }
+  }
+
+  next = &block_buffer[block_buffer_planned];       // forward pass
+  block_index = plan_next_block_index(block_buffer_planned);
+  while (block_index != block_buffer_head) {
+    current = next;
+    next = &block_buffer[block_index];
+    if (current->entry_speed_sqr < next->entry_speed_sqr) {
+      entry_speed_sqr = current->entry_speed_sqr + 2 * current->acceleration * current->millimeters;
+      if (entry_speed_sqr < next->entry_speed_sqr) {
+        next->entry_speed_sqr = entry_speed_sqr;
+        block_buffer_planned = block_index;
+      }
+    }
+    if (next->entry_speed_sqr == next->max_entry_speed_sqr) block_buffer_planned = block_index;
+    block_index = plan_next_block_index(block_index);
+  }
+}
+
+plan_block_t *plan_get_current_block(void)
+{
+  if (block_buffer_head == block_buffer_tail) return NULL;
+  return &block_buffer[block_buffer_tail];
+}
+
+void plan_discard_current_block(void)
+{
+  if (block_buffer_head != block_buffer_tail) {
+    uint8_t block_index = plan_next_block_index(block_buffer_tail);
+    if (block_buffer_tail == block_buffer_planned) block_buffer_planned = block_index;
+    block_buffer_tail = block_index;
+  }
+}
+
+float plan_get_exec_block_exit_speed_sqr(void)
+{
+  uint8_t block_index = plan_next_block_index(block_buffer_tail);
+  if (block_index == block_buffer_head) return 0.0f;
+  return block_buffer[block_index].entry_speed_sqr;
+}
+
+uint8_t plan_check_full_buffer(void)
+{
+  return block_buffer_tail == next_buffer_head;
+}
+
+uint8_t plan_get_block_buffer_available(void)
+{
+  if (block_buffer_head >= block_buffer_tail)
+    return (BLOCK_BUFFER_SIZE - 1) - (block_buffer_head - block_buffer_tail);
+  return block_buffer_tail - block_buffer_head - 1;
+}
+
+float plan_compute_profile_nominal_speed(const plan_block_t *block)
+{
+  return sqrtf(block->nominal_speed_sqr);
+}
+
+void plan_sync_position(void)
+{
+  system_get_position(pl.position);
+}
+
+void plan_cycle_reinitialize(void)
+{
+  st_update_plan_block_parameters();
+  block_buffer_planned = block_buffer_tail;
+  planner_recalculate();
+}
+
+static float convert_delta_vector_to_unit_vector(float *vector)
+{
+  float magnitude = 0.0f;
+  for (uint8_t i = 0; i < N_AXIS; i++) magnitude += vector[i] * vector[i];
+  magnitude = sqrtf(magnitude);
+  float inv = 1.0f / magnitude;
+  for (uint8_t i = 0; i < N_AXIS; i++) vector[i] *= inv;
+  return magnitude;
+}
+
+// The largest value along unit_vec that no axis' own limit is exceeded by.
+static float limit_value_by_axis_maximum(const float *max_value, const float *unit_vec)
+{
+  float limit = SOME_LARGE_VALUE;
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    if (unit_vec[i] != 0) limit = min(limit, fabsf(max_value[i] / unit_vec[i]));
+  }
+  return limit;
+}
+
+static uint8_t plan_backlash_axes(const int32_t *target_steps)
+{
+  uint8_t axes = 0;
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    if (settings.backlash[i] <= 0.0f || target_steps[i] == pl.position[i]) continue;
+    uint8_t neg = target_steps[i] < pl.position[i];
+    if (neg != ((pl.last_dir_bits >> i) & 1)) axes |= bit(i);
+  }
+  return axes;
+}
+
+static void plan_target_steps(const float *target, int32_t *target_steps)
+{
+  for (uint8_t i = 0; i < N_AXIS; i++) target_steps[i] = nuts_lround(target[i] * settings.steps_per_deg[i]);
+}
+
+uint8_t plan_backlash_blocks_needed(const float *target)
+{
+  int32_t target_steps[N_AXIS];
+  plan_target_steps(target, target_steps);
+  return plan_backlash_axes(target_steps) ? 2 : 1;
+}
+
+// Fill block at the head from step deltas and queue it. Returns PLAN_OK or PLAN_EMPTY_BLOCK.
+static uint8_t plan_queue_block(const int32_t *delta_steps, float feed_rate, uint8_t condition)
+{
+  plan_block_t *block = &block_buffer[block_buffer_head];
+  memset(block, 0, sizeof(plan_block_t));
+  block->condition = condition;
+
+  float unit_vec[N_AXIS];
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    int32_t d = delta_steps[i];
+    block->steps[i] = (uint32_t)(d < 0 ? -d : d);
+    block->step_event_count = max(block->step_event_count, block->steps[i]);
+    unit_vec[i] = d / settings.steps_per_deg[i];
+    if (d < 0) block->direction_bits |= bit(i);
+  }
+  if (block->step_event_count == 0) return PLAN_EMPTY_BLOCK;
+
+  block->millimeters = convert_delta_vector_to_unit_vector(unit_vec);
+  float accel[N_AXIS];
+  for (uint8_t i = 0; i < N_AXIS; i++) accel[i] = settings.acceleration[i] * 3600.0f; // deg/s^2 -> deg/min^2
+  block->acceleration = limit_value_by_axis_maximum(accel, unit_vec);
+  float rapid_rate = limit_value_by_axis_maximum(settings.max_rate, unit_vec);
+  float nominal_speed = (condition & PL_COND_FLAG_RAPID_MOTION) ? rapid_rate : min(feed_rate, rapid_rate);
+  if (nominal_speed < MINIMUM_FEED_RATE) nominal_speed = MINIMUM_FEED_RATE;
+  block->nominal_speed_sqr = nominal_speed * nominal_speed;
+
+  if (block_buffer_head == block_buffer_tail || (condition & PL_COND_FLAG_SYSTEM_MOTION)) {
+    block->entry_speed_sqr = 0.0f;
+    block->max_junction_speed_sqr = 0.0f;
+  } else {
+    float junction_unit_vec[N_AXIS];
+    float junction_cos_theta = 0.0f;
+    for (uint8_t i = 0; i < N_AXIS; i++) {
+      junction_cos_theta -= pl.previous_unit_vec[i] * unit_vec[i];
+      junction_unit_vec[i] = unit_vec[i] - pl.previous_unit_vec[i];
+    }
+    if (junction_cos_theta > 0.999999f) {
+      block->max_junction_speed_sqr = MINIMUM_JUNCTION_SPEED * MINIMUM_JUNCTION_SPEED;
+    } else if (junction_cos_theta < -0.999999f) {
+      block->max_junction_speed_sqr = SOME_LARGE_VALUE;
+    } else {
+      convert_delta_vector_to_unit_vector(junction_unit_vec);
+      float junction_acceleration = limit_value_by_axis_maximum(accel, junction_unit_vec);
+      float sin_theta_d2 = sqrtf(0.5f * (1.0f - junction_cos_theta));
+      block->max_junction_speed_sqr = max(MINIMUM_JUNCTION_SPEED * MINIMUM_JUNCTION_SPEED,
+          (junction_acceleration * settings.junction_deviation * sin_theta_d2) / (1.0f - sin_theta_d2));
+    }
+  }
+
+  float prev = pl.previous_nominal_speed;
+  block->max_entry_speed_sqr = (nominal_speed > prev) ? prev * prev : block->nominal_speed_sqr;
+  if (block->max_entry_speed_sqr > block->max_junction_speed_sqr) block->max_entry_speed_sqr = block->max_junction_speed_sqr;
+  if (condition & PL_COND_FLAG_SYSTEM_MOTION) {
+    pl.previous_nominal_speed = 0.0f;   // homing moves start and end at rest
+    memset(pl.previous_unit_vec, 0, sizeof(pl.previous_unit_vec));
+  } else {
+    pl.previous_nominal_speed = nominal_speed;
+    memcpy(pl.previous_unit_vec, unit_vec, sizeof(unit_vec));
+  }
+
+  block_buffer_head = next_buffer_head;
+  next_buffer_head = plan_next_block_index(block_buffer_head);
+  planner_recalculate();
+  return PLAN_OK;
+}
+
+uint8_t plan_buffer_line(const float *target, const plan_line_data_t *pl_data)
+{
+  int32_t target_steps[N_AXIS];
+  int32_t position[N_AXIS];
+  int32_t delta[N_AXIS];
+  plan_target_steps(target, target_steps);
+
+  if (pl_data->condition & PL_COND_FLAG_SYSTEM_MOTION) {
+    // Homing moves relative to where the motors are now.
+    system_get_position(position);
+    for (uint8_t i = 0; i < N_AXIS; i++) delta[i] = target_steps[i] - position[i];
+    return plan_queue_block(delta, pl_data->feed_rate, pl_data->condition);
+  }
+
+  uint8_t bl_axes = plan_backlash_axes(target_steps);
+  if (bl_axes) {
+    for (uint8_t i = 0; i < N_AXIS; i++) {
+      delta[i] = 0;
+      if (bl_axes & bit(i)) {
+        int32_t n = nuts_lround(settings.backlash[i] * settings.steps_per_deg[i]);
+        delta[i] = (target_steps[i] < pl.position[i]) ? -n : n;
+      }
+    }
+    plan_queue_block(delta, settings.max_rate[0] + settings.max_rate[1] + settings.max_rate[2],
+                     PL_COND_FLAG_BACKLASH | PL_COND_FLAG_RAPID_MOTION | (pl_data->condition & PL_COND_FLAG_JOG));
+  }
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    delta[i] = target_steps[i] - pl.position[i];
+    if (delta[i] > 0) pl.last_dir_bits &= ~bit(i);
+    else if (delta[i] < 0) pl.last_dir_bits |= bit(i);
+  }
+  uint8_t r = plan_queue_block(delta, pl_data->feed_rate, pl_data->condition);
+  memcpy(pl.position, target_steps, sizeof(target_steps));
+  return r;
+}

@@ -1,0 +1,253 @@
+// The main loop: line reader, real-time command execution, cycle control.
+#include <string.h>
+#include "protocol.h"
+#include "config.h"
+#include "codes.h"
+#include "nuts.h"
+#include "board.h"     // board_idle, board_reset_cause_watchdog
+#include "serial.h"    // serial_read
+#include "system.h"    // sys, exec flags
+#include "settings.h"  // settings, settings_restored
+#include "report.h"    // report_*
+#include "gcode.h"     // gc_execute_line, gc_init
+#include "planner.h"   // plan_*
+#include "stepper.h"   // st_*
+#include "limits.h"    // limits_init
+#include "motion.h"    // mc_reset
+
+// Line reader flags
+#define LINE_FLAG_OVERFLOW (1 << 0)
+#define LINE_FLAG_COMMENT_PARENTHESES (1 << 1)
+#define LINE_FLAG_COMMENT_SEMICOLON (1 << 2)
+
+static char line[LINE_BUFFER_SIZE];
+static uint8_t char_counter;
+static uint8_t line_flags;
+
+static void protocol_exec_rt_system(void);
+
+void protocol_init(void)
+{
+  memset(&sys, 0, sizeof(sys));
+  sys.state = STATE_IDLE;
+  if (board_reset_cause_watchdog()) sys_fault = FAULT_WATCHDOG;
+  if (bit_istrue(settings.flags, BITFLAG_HOMING_ENABLE)) sys.state = STATE_ALARM;
+  if (sys_fault) sys.state = STATE_ALARM;
+}
+
+void protocol_reset(void)
+{
+  uint8_t prior_state = sys.state;
+  memset(&sys, 0, sizeof(sys));
+  sys.state = prior_state;
+  serial_reset_read_buffer();
+  gc_init();
+  plan_reset();
+  st_reset();
+  limits_init();
+  plan_sync_position();
+  gc_sync_position();
+  sys_rt_exec_state = 0;
+  sys_rt_exec_alarm = 0;
+  char_counter = 0;
+  line_flags = 0;
+
+  report_init_message();
+  if (settings_restored) {
+    report_feedback_message(MESSAGE_SETTINGS_CRC);
+    settings_restored = 0;
+  }
+  if (sys_fault) {
+    report_feedback_message(sys_fault == FAULT_WATCHDOG ? MESSAGE_FAULT_WATCHDOG : MESSAGE_FAULT_INTERNAL);
+    report_alarm_message(EXEC_ALARM_FAULT);
+    sys_fault = 0;
+    sys.state = STATE_ALARM;
+  }
+  if (sys.state & STATE_ALARM) {
+    report_feedback_message(MESSAGE_ALARM_LOCK);
+    sys.state = STATE_ALARM;
+  } else {
+    sys.state = STATE_IDLE;
+  }
+}
+
+static void protocol_execute_line(void)
+{
+  line[char_counter] = 0;
+  if (line_flags & LINE_FLAG_OVERFLOW) {
+    report_status_message(STATUS_OVERFLOW);
+  } else if (line[0] == 0) {
+    report_status_message(STATUS_OK);   // empty or comment-only line: ok, for sender sync
+  } else if (line[0] == '$') {
+    report_status_message(system_execute_line(line));
+  } else if (sys.state & (STATE_ALARM | STATE_JOG)) {
+    report_status_message(STATUS_SYSTEM_GC_LOCK);
+  } else {
+    report_status_message(gc_execute_line(line, 0));
+  }
+  char_counter = 0;
+  line_flags = 0;
+}
+
+void protocol_process_char(uint8_t c)
+{
+  if (c == '\n' || c == '\r') {
+    protocol_execute_realtime();
+    if (sys.abort) return;
+    protocol_execute_line();
+    return;
+  }
+  if (line_flags) {
+    // Inside a comment or an overflowed line: drop until its end.
+    if (c == ')' && (line_flags & LINE_FLAG_COMMENT_PARENTHESES)) line_flags &= ~LINE_FLAG_COMMENT_PARENTHESES;
+    return;
+  }
+  if (c <= ' ') return;                 // whitespace and control bytes (NUL too) are dropped, as GRBL
+  if (c == '/') return;                 // block delete: not supported, ignored as GRBL
+  if (c == '(') { line_flags |= LINE_FLAG_COMMENT_PARENTHESES; return; }
+  if (c == ';') { line_flags |= LINE_FLAG_COMMENT_SEMICOLON; return; }
+  if (char_counter >= LINE_BUFFER_SIZE - 1) {
+    line_flags |= LINE_FLAG_OVERFLOW;
+    return;
+  }
+  if (c >= 'a' && c <= 'z') c -= 'a' - 'A';
+  line[char_counter++] = c;
+}
+
+void protocol_poll(void)
+{
+  uint8_t c;
+  while ((c = serial_read()) != SERIAL_NO_DATA) {
+    protocol_process_char(c);
+    if (sys.abort) return;
+  }
+  protocol_auto_cycle_start();
+  protocol_execute_realtime();
+  st_idle_poll();
+  board_idle();
+}
+
+void protocol_main_loop(void)
+{
+  while (!sys.abort) protocol_poll();
+}
+
+void protocol_buffer_synchronize(void)
+{
+  protocol_auto_cycle_start();
+  do {
+    protocol_execute_realtime();
+    if (sys.abort) return;
+    board_idle();
+  } while (plan_get_current_block() || (sys.state == STATE_CYCLE));
+}
+
+void protocol_auto_cycle_start(void)
+{
+  if (plan_get_current_block() != NULL) system_set_exec_state_flag(EXEC_CYCLE_START);
+}
+
+void protocol_execute_realtime(void)
+{
+  protocol_exec_rt_system();
+  if (sys.suspend) {
+    // Hold: nothing to do but keep the segment buffer (the hold point) prepared.
+  }
+}
+
+static void protocol_exec_rt_system(void)
+{
+  uint8_t rt_exec = sys_rt_exec_alarm;
+  if (rt_exec) {
+    sys.state = STATE_ALARM;
+    report_alarm_message(rt_exec);
+    if (rt_exec == EXEC_ALARM_HARD_LIMIT || rt_exec == EXEC_ALARM_SOFT_LIMIT || rt_exec == EXEC_ALARM_FAULT) {
+      // Critical: position may be lost or the machine is unsafe; only reset continues.
+      if (rt_exec == EXEC_ALARM_FAULT)
+        report_feedback_message(sys_fault == FAULT_WATCHDOG ? MESSAGE_FAULT_WATCHDOG : MESSAGE_FAULT_INTERNAL);
+      report_feedback_message(MESSAGE_CRITICAL_EVENT);
+      system_clear_exec_state_flag(EXEC_RESET);
+      do {
+        if (sys_rt_exec_state & EXEC_STATUS_REPORT) {
+          system_clear_exec_state_flag(EXEC_STATUS_REPORT);
+          report_realtime_status();
+        }
+        board_idle();
+      } while (bit_isfalse(sys_rt_exec_state, EXEC_RESET));
+      sys_fault = 0;
+    }
+    system_clear_exec_alarm();
+  }
+
+  rt_exec = sys_rt_exec_state;
+  if (rt_exec) {
+    if (rt_exec & EXEC_RESET) {
+      sys.abort = 1;
+      return;
+    }
+    if (rt_exec & EXEC_STATUS_REPORT) {
+      report_realtime_status();
+      system_clear_exec_state_flag(EXEC_STATUS_REPORT);
+    }
+
+    if (rt_exec & (EXEC_MOTION_CANCEL | EXEC_FEED_HOLD)) {
+      if (!(sys.state & (STATE_ALARM | STATE_CHECK_MODE))) {
+        if (sys.state & (STATE_CYCLE | STATE_JOG)) {
+          if (!(sys.suspend & (SUSPEND_MOTION_CANCEL | SUSPEND_JOG_CANCEL))) {
+            st_update_plan_block_parameters();
+            sys.step_control = STEP_CONTROL_EXECUTE_HOLD;
+            if (sys.state == STATE_JOG) sys.suspend |= SUSPEND_JOG_CANCEL;
+          }
+        }
+        if (sys.state == STATE_IDLE) sys.suspend = SUSPEND_HOLD_COMPLETE;
+        if (rt_exec & EXEC_FEED_HOLD) {
+          if (!(sys.state & STATE_JOG)) sys.state = STATE_HOLD;
+        }
+      }
+      system_clear_exec_state_flag(EXEC_MOTION_CANCEL | EXEC_FEED_HOLD);
+    }
+
+    if (rt_exec & EXEC_CYCLE_START) {
+      if (!(rt_exec & (EXEC_FEED_HOLD | EXEC_MOTION_CANCEL))) {
+        if (sys.state == STATE_IDLE || (sys.state & STATE_HOLD && sys.suspend & SUSPEND_HOLD_COMPLETE)) {
+          sys.step_control = STEP_CONTROL_NORMAL_OP;
+          if (plan_get_current_block() && !(sys.suspend & SUSPEND_MOTION_CANCEL)) {
+            sys.suspend = SUSPEND_DISABLE;
+            sys.state = STATE_CYCLE;
+            st_prep_buffer();
+            st_wake_up();
+          } else {
+            sys.suspend = SUSPEND_DISABLE;
+            sys.state = STATE_IDLE;
+          }
+        }
+      }
+      system_clear_exec_state_flag(EXEC_CYCLE_START);
+    }
+
+    if ((rt_exec & EXEC_CYCLE_STOP) && sys.state != STATE_HOMING) {  // homing waits for it itself
+      if ((sys.state & STATE_HOLD) && !sys.soft_limit && !(sys.suspend & SUSPEND_JOG_CANCEL)) {
+        // Hold complete: the remaining moves stay queued for '~'.
+        plan_cycle_reinitialize();
+        if (sys.step_control & STEP_CONTROL_EXECUTE_HOLD) sys.suspend |= SUSPEND_HOLD_COMPLETE;
+        sys.step_control &= ~(STEP_CONTROL_EXECUTE_HOLD | STEP_CONTROL_EXECUTE_SYS_MOTION);
+      } else {
+        if (sys.suspend & SUSPEND_JOG_CANCEL) {
+          // Jog cancelled: drop what is left and resynchronise.
+          sys.step_control = STEP_CONTROL_NORMAL_OP;
+          plan_reset();
+          st_reset();
+          gc_sync_position();
+          plan_sync_position();
+        }
+        if (sys.state & (STATE_CYCLE | STATE_JOG | STATE_HOLD)) {
+          sys.suspend = SUSPEND_DISABLE;
+          sys.state = STATE_IDLE;
+        }
+      }
+      system_clear_exec_state_flag(EXEC_CYCLE_STOP);
+    }
+  }
+
+  if (sys.state & (STATE_CYCLE | STATE_HOLD | STATE_HOMING | STATE_JOG)) st_prep_buffer();
+}

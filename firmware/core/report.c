@@ -1,0 +1,290 @@
+// Everything the firmware prints: ok/error, alarms, messages, reports.
+// Line endings are "\r\n" as in GRBL 1.1.
+#include "report.h"
+#include "pgmspace.h"
+#include "config.h"
+#include "codes.h"
+#include "nuts.h"
+#include "serial.h"    // serial_write
+#include "system.h"    // sys, sys_position
+#include "settings.h"  // settings
+#include "gcode.h"     // gc_state
+#include "planner.h"   // plan_get_block_buffer_available
+#include "stepper.h"   // st_get_realtime_rate
+#include "limits.h"    // limits_get_state
+
+void printString(const char *s)
+{
+  while (*s) serial_write(*s++);
+}
+
+void printPgmString(const char *s)
+{
+  char c;
+  while ((c = pgm_read_byte(s++))) serial_write(c);
+}
+
+void print_uint32(uint32_t n)
+{
+  char buf[10];
+  uint8_t i = 0;
+  if (n == 0) { serial_write('0'); return; }
+  while (n > 0) { buf[i++] = '0' + n % 10; n /= 10; }
+  while (i > 0) serial_write(buf[--i]);
+}
+
+void printFloat(float n, uint8_t decimals)
+{
+  if (n < 0) { serial_write('-'); n = -n; }
+  uint8_t d = decimals;
+  while (d >= 2) { n *= 100; d -= 2; }
+  if (d) n *= 10;
+  n += 0.5f;
+  if (n > 4.0e9f) n = 4.0e9f;   // clamp: keeps the integer conversion defined
+  uint32_t a = (uint32_t)n;
+  char buf[13];
+  uint8_t i = 0;
+  while (a > 0 || i <= decimals) {
+    if (decimals && i == decimals) buf[i++] = '.';
+    buf[i++] = '0' + a % 10;
+    a /= 10;
+  }
+  if (decimals && buf[i - 1] == '.') buf[i++] = '0';
+  while (i > 0) serial_write(buf[--i]);
+}
+
+static void print_axis_values(const float *v)
+{
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    printFloat(v[i], N_DECIMAL_COORDVALUE);
+    if (i < N_AXIS - 1) serial_write(',');
+  }
+}
+
+static void report_eol(void)
+{
+  serial_write('\r');
+  serial_write('\n');
+}
+
+void report_status_message(uint8_t status)
+{
+  if (status == STATUS_OK) {
+    printPgmString(PSTR("ok\r\n"));
+  } else {
+    printPgmString(PSTR("error:"));
+    print_uint32(status);
+    report_eol();
+  }
+}
+
+void report_alarm_message(uint8_t alarm)
+{
+  printPgmString(PSTR("ALARM:"));
+  print_uint32(alarm);
+  report_eol();
+}
+
+void report_feedback_message(uint8_t message)
+{
+  printPgmString(PSTR("[MSG:"));
+  switch (message) {
+    case MESSAGE_CRITICAL_EVENT: printPgmString(PSTR("Reset to continue")); break;
+    case MESSAGE_ALARM_LOCK: printPgmString(PSTR("'$H'|'$X' to unlock")); break;
+    case MESSAGE_ALARM_UNLOCK: printPgmString(PSTR("Caution: Unlocked")); break;
+    case MESSAGE_ENABLED: printPgmString(PSTR("Enabled")); break;
+    case MESSAGE_DISABLED: printPgmString(PSTR("Disabled")); break;
+    case MESSAGE_CHECK_LIMITS: printPgmString(PSTR("Check Limits")); break;
+    case MESSAGE_PROGRAM_END: printPgmString(PSTR("Pgm End")); break;
+    case MESSAGE_RESTORE_DEFAULTS: printPgmString(PSTR("Restoring defaults")); break;
+    case MESSAGE_SETTINGS_CRC: printPgmString(PSTR("EEPROM settings failed CRC check, defaults restored")); break;
+    case MESSAGE_FAULT_WATCHDOG: printPgmString(PSTR("Fault: watchdog reset, drivers disabled")); break;
+    case MESSAGE_FAULT_INTERNAL: printPgmString(PSTR("Fault: internal error, drivers disabled")); break;
+  }
+  printPgmString(PSTR("]\r\n"));
+}
+
+void report_init_message(void)
+{
+  printPgmString(PSTR("\r\nGrbl " GRBL_VERSION " ['$' for help]\r\n"));
+  printPgmString(PSTR("[MSG:" FIRMWARE_NAME ", units: degrees]\r\n"));
+}
+
+void report_grbl_help(void)
+{
+  printPgmString(PSTR("[HLP:$$ $# $G $I $x=val $J=line $C $X $H $HX $HY $HZ $RST= ~ ! ? ctrl-x]\r\n"));
+}
+
+static void report_setting_u(uint8_t n, uint32_t v)
+{
+  serial_write('$');
+  print_uint32(n);
+  serial_write('=');
+  print_uint32(v);
+  report_eol();
+}
+
+static void report_setting_f(uint8_t n, float v)
+{
+  serial_write('$');
+  print_uint32(n);
+  serial_write('=');
+  printFloat(v, N_DECIMAL_SETTINGVALUE);
+  report_eol();
+}
+
+void report_grbl_settings(void)
+{
+  report_setting_u(0, settings.pulse_microseconds);
+  report_setting_u(1, settings.stepper_idle_lock_time);
+  report_setting_u(2, settings.step_invert_mask);
+  report_setting_u(3, settings.dir_invert_mask);
+  report_setting_u(4, bit_istrue(settings.flags, BITFLAG_INVERT_ST_ENABLE));
+  report_setting_u(5, bit_istrue(settings.flags, BITFLAG_INVERT_LIMIT_PINS));
+  report_setting_u(10, settings.status_report_mask);
+  report_setting_f(11, settings.junction_deviation);
+  report_setting_u(13, 0);
+  report_setting_u(20, bit_istrue(settings.flags, BITFLAG_SOFT_LIMIT_ENABLE));
+  report_setting_u(21, bit_istrue(settings.flags, BITFLAG_HARD_LIMIT_ENABLE));
+  report_setting_u(22, bit_istrue(settings.flags, BITFLAG_HOMING_ENABLE));
+  report_setting_u(23, settings.homing_dir_mask);
+  report_setting_f(24, settings.homing_feed_rate);
+  report_setting_f(25, settings.homing_seek_rate);
+  report_setting_u(26, settings.homing_debounce_delay);
+  report_setting_f(27, settings.homing_pulloff);
+  const float *groups[5] = {settings.steps_per_deg, settings.max_rate, settings.acceleration,
+                            settings.max_travel, settings.backlash};
+  for (uint8_t g = 0; g < 5; g++)
+    for (uint8_t i = 0; i < N_AXIS; i++) report_setting_f(100 + 10 * g + i, groups[g][i]);
+}
+
+static void report_coord(const char *pname, const float *v)
+{
+  serial_write('[');
+  printPgmString(pname);
+  serial_write(':');
+  print_axis_values(v);
+  printPgmString(PSTR("]\r\n"));
+}
+
+void report_ngc_parameters(void)
+{
+  float coord[N_AXIS];
+  for (uint8_t i = 0; i < SETTING_INDEX_NCOORD; i++) {
+    if (!settings_read_coord_data(i, coord)) {
+      report_status_message(STATUS_SETTING_READ_FAIL);
+      return;
+    }
+    serial_write('[');
+    if (i < N_COORDINATE_SYSTEM) {
+      serial_write('G');
+      print_uint32(54 + i);
+    } else {
+      printPgmString(i == SETTING_INDEX_G28 ? PSTR("G28") : PSTR("G30"));
+    }
+    serial_write(':');
+    print_axis_values(coord);
+    printPgmString(PSTR("]\r\n"));
+  }
+  report_coord(PSTR("G92"), gc_state.coord_offset);
+  printPgmString(PSTR("[TLO:0.000]\r\n[PRB:0.000,0.000,0.000:0]\r\n"));
+}
+
+void report_gcode_modes(void)
+{
+  printPgmString(PSTR("[GC:G"));
+  print_uint32(gc_state.modal.motion == MOTION_MODE_NONE ? 80 : gc_state.modal.motion);
+  printPgmString(PSTR(" G"));
+  print_uint32(54 + gc_state.modal.coord_select);
+  printPgmString(PSTR(" G17 G21 G"));
+  print_uint32(gc_state.modal.distance ? 91 : 90);
+  printPgmString(PSTR(" G94"));
+  if (gc_state.modal.program_flow) {
+    printPgmString(PSTR(" M"));
+    print_uint32(gc_state.modal.program_flow);
+  }
+  printPgmString(PSTR(" M5 M9 T0 F"));
+  printFloat(gc_state.feed_rate, 0);
+  printPgmString(PSTR(" S0]\r\n"));
+}
+
+void report_build_info(const char *info)
+{
+  printPgmString(PSTR("[VER:" GRBL_VERSION "." GRBL_VERSION_BUILD ":"));
+  printString(info);
+  printPgmString(PSTR("]\r\n[OPT:H,"));
+  print_uint32(BLOCK_BUFFER_SIZE - 1);
+  serial_write(',');
+  print_uint32(RX_BUFFER_SIZE);
+  printPgmString(PSTR("]\r\n"));
+}
+
+void report_realtime_status(void)
+{
+  int32_t steps[N_AXIS];
+  float pos[N_AXIS];
+  float wco[N_AXIS];
+  system_get_position(steps);
+  system_convert_array_steps_to_mpos(pos, steps);
+
+  serial_write('<');
+  switch (sys.state) {
+    case STATE_IDLE: printPgmString(PSTR("Idle")); break;
+    case STATE_CYCLE: printPgmString(PSTR("Run")); break;
+    case STATE_HOLD:
+      if (!(sys.suspend & SUSPEND_JOG_CANCEL)) {
+        printPgmString(PSTR("Hold:"));
+        serial_write(sys.suspend & SUSPEND_HOLD_COMPLETE ? '0' : '1');
+        break;
+      } // a jog cancel reports Jog
+      /* fall through */
+    case STATE_JOG: printPgmString(PSTR("Jog")); break;
+    case STATE_HOMING: printPgmString(PSTR("Home")); break;
+    case STATE_ALARM: printPgmString(PSTR("Alarm")); break;
+    case STATE_CHECK_MODE: printPgmString(PSTR("Check")); break;
+  }
+
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    wco[i] = gc_state.coord_system[i] + gc_state.coord_offset[i];
+    if (!(settings.status_report_mask & 1)) pos[i] -= wco[i];
+  }
+  printPgmString(settings.status_report_mask & 1 ? PSTR("|MPos:") : PSTR("|WPos:"));
+  print_axis_values(pos);
+
+  if (settings.status_report_mask & 2) {
+    printPgmString(PSTR("|Bf:"));
+    print_uint32(plan_get_block_buffer_available());
+    serial_write(',');
+    print_uint32(serial_get_rx_buffer_available());
+  }
+
+  printPgmString(PSTR("|FS:"));
+  printFloat(st_get_realtime_rate(), 0);
+  printPgmString(PSTR(",0"));
+
+  uint8_t lim = limits_get_state();
+  if (lim) {
+    printPgmString(PSTR("|Pn:"));
+    if (lim & bit(X_AXIS)) serial_write('X');
+    if (lim & bit(Y_AXIS)) serial_write('Y');
+    if (lim & bit(Z_AXIS)) serial_write('Z');
+  }
+
+  if (sys.report_wco_counter > 0) {
+    sys.report_wco_counter--;
+  } else {
+    sys.report_wco_counter = (sys.state & (STATE_HOMING | STATE_CYCLE | STATE_HOLD | STATE_JOG))
+                                 ? REPORT_WCO_REFRESH_BUSY_COUNT - 1 : REPORT_WCO_REFRESH_IDLE_COUNT - 1;
+    if (sys.report_ovr_counter == 0) sys.report_ovr_counter = 1;  // Ov on the next report
+    printPgmString(PSTR("|WCO:"));
+    print_axis_values(wco);
+  }
+  if (sys.report_ovr_counter > 0) {
+    sys.report_ovr_counter--;
+  } else {
+    sys.report_ovr_counter = (sys.state & (STATE_HOMING | STATE_CYCLE | STATE_HOLD | STATE_JOG))
+                                 ? REPORT_OVR_REFRESH_BUSY_COUNT - 1 : REPORT_OVR_REFRESH_IDLE_COUNT - 1;
+    printPgmString(PSTR("|Ov:100,100,100"));
+  }
+  printPgmString(PSTR(">\r\n"));
+}

@@ -1,0 +1,213 @@
+// '$' settings kept in EEPROM behind a CRC-16, and the stored coordinate data.
+// GRBL protects each block with an 8-bit additive checksum that misses many
+// errors; here every block carries a CRC-16/CCITT-FALSE, and the settings
+// block also a version byte.
+#include <string.h>
+#include "settings.h"
+#include "codes.h"
+#include "nuts.h"
+#include "board.h"     // board_eeprom_*, board_stepper_config, board_limits_irq
+#include "stepper.h"   // st_generate_step_dir_invert_masks
+#include "limits.h"    // limits_init
+
+settings_t settings;
+uint8_t settings_restored;
+
+// Defaults: 200 steps x 16 microsteps x 90:1 worm / 360 deg = 800 steps/deg.
+static const settings_t settings_defaults = {
+  .steps_per_deg = {800.0f, 800.0f, 800.0f},
+  .max_rate = {1800.0f, 1800.0f, 1800.0f},        // 30 deg/s = 24 kHz
+  .acceleration = {90.0f, 90.0f, 90.0f},          // deg/s^2
+  .max_travel = {360.0f, 360.0f, 360.0f},
+  .backlash = {0.0f, 0.0f, 0.0f},
+  .junction_deviation = 0.01f,
+  .homing_feed_rate = 60.0f,
+  .homing_seek_rate = 600.0f,
+  .homing_pulloff = 1.0f,
+  .homing_debounce_delay = 250,
+  .pulse_microseconds = 10,
+  .stepper_idle_lock_time = 25,
+  .step_invert_mask = 0,
+  .dir_invert_mask = 0,
+  .status_report_mask = 1,
+  .homing_dir_mask = 0,
+  .flags = 0,
+};
+
+void settings_store_block(uint16_t addr, const void *data, uint16_t size)
+{
+  const uint8_t *p = data;
+  uint16_t crc = crc16_ccitt(0xffff, p, size);
+  for (uint16_t i = 0; i < size; i++) {
+    if (board_eeprom_read(addr + i) != p[i]) board_eeprom_write(addr + i, p[i]);
+    board_idle();
+  }
+  board_eeprom_write(addr + size, crc & 0xff);
+  board_eeprom_write(addr + size + 1, crc >> 8);
+}
+
+uint8_t settings_load_block(uint16_t addr, void *data, uint16_t size)
+{
+  uint8_t *p = data;
+  for (uint16_t i = 0; i < size; i++) p[i] = board_eeprom_read(addr + i);
+  uint16_t crc = crc16_ccitt(0xffff, p, size);
+  uint16_t stored = board_eeprom_read(addr + size) | ((uint16_t)board_eeprom_read(addr + size + 1) << 8);
+  return crc == stored;
+}
+
+typedef struct {
+  uint8_t version;
+  settings_t s;
+} settings_record_t;
+
+static void settings_write_global(void)
+{
+  settings_record_t rec;
+  rec.version = SETTINGS_VERSION;
+  memcpy(&rec.s, &settings, sizeof(settings));
+  settings_store_block(EEPROM_ADDR_GLOBAL, &rec, sizeof(rec));
+}
+
+void settings_write_coord_data(uint8_t index, const float *coord)
+{
+  settings_store_block(EEPROM_ADDR_PARAMETERS + index * (N_AXIS * sizeof(float) + 2), coord, N_AXIS * sizeof(float));
+}
+
+uint8_t settings_read_coord_data(uint8_t index, float *coord)
+{
+  if (!settings_load_block(EEPROM_ADDR_PARAMETERS + index * (N_AXIS * sizeof(float) + 2), coord, N_AXIS * sizeof(float))) {
+    memset(coord, 0, N_AXIS * sizeof(float));
+    settings_write_coord_data(index, coord);
+    return 0;
+  }
+  return 1;
+}
+
+#define BUILD_INFO_SIZE 41   // 40 characters + NUL
+
+void settings_store_build_info(const char *line)
+{
+  char buf[BUILD_INFO_SIZE];
+  memset(buf, 0, sizeof(buf));
+  strncpy(buf, line, BUILD_INFO_SIZE - 1);
+  settings_store_block(EEPROM_ADDR_BUILD_INFO, buf, BUILD_INFO_SIZE);
+}
+
+uint8_t settings_read_build_info(char *line)
+{
+  if (!settings_load_block(EEPROM_ADDR_BUILD_INFO, line, BUILD_INFO_SIZE)) {
+    settings_store_build_info("");
+    line[0] = 0;
+    return 0;
+  }
+  line[BUILD_INFO_SIZE - 1] = 0;
+  return 1;
+}
+
+void settings_restore(uint8_t restore_flag)
+{
+  if (restore_flag & SETTINGS_RESTORE_DEFAULTS) {
+    memcpy(&settings, &settings_defaults, sizeof(settings));
+    settings_write_global();
+  }
+  if (restore_flag & SETTINGS_RESTORE_PARAMETERS) {
+    float coord[N_AXIS] = {0};
+    for (uint8_t i = 0; i < SETTING_INDEX_NCOORD; i++) settings_write_coord_data(i, coord);
+  }
+  if (restore_flag & SETTINGS_RESTORE_BUILD_INFO) settings_store_build_info("");
+  settings_apply();
+}
+
+void settings_apply(void)
+{
+  st_generate_step_dir_invert_masks();
+  limits_init();
+}
+
+void settings_init(void)
+{
+  settings_record_t rec;
+  settings_restored = 0;
+  if (!settings_load_block(EEPROM_ADDR_GLOBAL, &rec, sizeof(rec)) || rec.version != SETTINGS_VERSION) {
+    settings_restored = 1;
+    settings_restore(SETTINGS_RESTORE_ALL);
+  } else {
+    memcpy(&settings, &rec.s, sizeof(settings));
+    settings_apply();
+  }
+}
+
+uint8_t settings_store_global_setting(uint8_t parameter, float value)
+{
+  if (value < 0.0f) return STATUS_NEGATIVE_VALUE;
+  if (parameter >= 100) {
+    uint8_t set_idx = 0;
+    while (set_idx < 5) {
+      uint8_t idx = parameter - 100 - 10 * set_idx;
+      if (parameter >= 100 + 10 * set_idx && idx < N_AXIS) {
+        switch (set_idx) {
+          case 0:
+            if (value * settings.max_rate[idx] > MAX_STEP_RATE_HZ * 60.0f || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+            settings.steps_per_deg[idx] = value;
+            break;
+          case 1:
+            if (value * settings.steps_per_deg[idx] > MAX_STEP_RATE_HZ * 60.0f || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+            settings.max_rate[idx] = value;
+            break;
+          case 2:
+            if (value <= 0.0f) return STATUS_NEGATIVE_VALUE;
+            settings.acceleration[idx] = value;
+            break;
+          case 3: settings.max_travel[idx] = value; break;
+          case 4:
+            if (value * settings.steps_per_deg[idx] > 30000.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+            settings.backlash[idx] = value;
+            break;
+        }
+        break;
+      }
+      set_idx++;
+    }
+    if (set_idx == 5) return STATUS_INVALID_STATEMENT;
+  } else {
+    if (value > 65535.0f) return STATUS_INVALID_STATEMENT;
+    uint16_t int_value = (uint16_t)(value + 0.5f);
+    switch (parameter) {
+      case 0:
+        if (int_value < 3) return STATUS_SETTING_STEP_PULSE_MIN;
+        if (int_value > 100) return STATUS_INVALID_STATEMENT;
+        settings.pulse_microseconds = int_value;
+        break;
+      case 1: if (int_value > 255) return STATUS_INVALID_STATEMENT; settings.stepper_idle_lock_time = int_value; break;
+      case 2: settings.step_invert_mask = int_value & 7; break;
+      case 3: settings.dir_invert_mask = int_value & 7; break;
+      case 4: if (int_value) settings.flags |= BITFLAG_INVERT_ST_ENABLE; else settings.flags &= ~BITFLAG_INVERT_ST_ENABLE; break;
+      case 5: if (int_value) settings.flags |= BITFLAG_INVERT_LIMIT_PINS; else settings.flags &= ~BITFLAG_INVERT_LIMIT_PINS; break;
+      case 10: settings.status_report_mask = int_value & 3; break;
+      case 11: settings.junction_deviation = value; break;
+      case 13: if (int_value) return STATUS_SETTING_DISABLED; break;  // inches: never (degrees)
+      case 20:
+        if (int_value) {
+          if (bit_isfalse(settings.flags, BITFLAG_HOMING_ENABLE)) return STATUS_SOFT_LIMIT_ERROR;
+          settings.flags |= BITFLAG_SOFT_LIMIT_ENABLE;
+        } else {
+          settings.flags &= ~BITFLAG_SOFT_LIMIT_ENABLE;
+        }
+        break;
+      case 21: if (int_value) settings.flags |= BITFLAG_HARD_LIMIT_ENABLE; else settings.flags &= ~BITFLAG_HARD_LIMIT_ENABLE; break;
+      case 22:
+        if (int_value) settings.flags |= BITFLAG_HOMING_ENABLE;
+        else settings.flags &= ~(BITFLAG_HOMING_ENABLE | BITFLAG_SOFT_LIMIT_ENABLE);
+        break;
+      case 23: settings.homing_dir_mask = int_value & 7; break;
+      case 24: if (value <= 0.0f) return STATUS_NEGATIVE_VALUE; settings.homing_feed_rate = value; break;
+      case 25: if (value <= 0.0f) return STATUS_NEGATIVE_VALUE; settings.homing_seek_rate = value; break;
+      case 26: settings.homing_debounce_delay = int_value; break;
+      case 27: settings.homing_pulloff = value; break;
+      default: return STATUS_INVALID_STATEMENT;
+    }
+  }
+  settings_write_global();
+  settings_apply();
+  return STATUS_OK;
+}
