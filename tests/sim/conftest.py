@@ -1,11 +1,7 @@
 """Shared fixtures of the sim tests: small synthetic textures (the paper's textures come from textures/)."""
-import os
-
 import numpy as np
 import pytest
 from PIL import Image
-
-SPEC = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "spec")
 
 
 def stripe_texture(h=256):
@@ -17,6 +13,11 @@ def stripe_texture(h=256):
     tex[h // 5: h // 3, w // 4: w // 2] = (0, 128, 0)
     tex[h // 2: 3 * h // 4, w // 2: 3 * w // 4] = (0, 0, 255)
     return tex
+
+
+@pytest.fixture(scope="session")
+def stripe_rgb():
+    return stripe_texture()
 
 
 @pytest.fixture(scope="session")
