@@ -8,7 +8,7 @@
 #include <stdio.h>
 #include "rig_stats.h"
 
-#define RIG_STATUS_LEN 160
+#define RIG_STATUS_LEN 256
 
 typedef struct {
     int index;                  /* 0-based position in the plan */

@@ -321,6 +321,10 @@ static int read_line(stage *s, char *line, size_t size, long long deadline, char
         ssize_t n;
         int r;
         if (take_line(s, line, size)) return 1;
+        if (s->o.cancel && *s->o.cancel) {
+            seterr(err, "read(%s): interrupted", s->path);
+            return -1;
+        }
         if (s->dead || s->fd < 0) {
             seterr(err, "read(%s): port closed after an earlier failure", s->path);
             return -1;
@@ -331,10 +335,7 @@ static int read_line(stage *s, char *line, size_t size, long long deadline, char
         pfd.events = POLLIN;
         pfd.revents = 0;
         r = poll(&pfd, 1, (int)left);
-        if (r == -1 && errno == EINTR) {
-            if (now_ms() >= deadline) return 0;
-            continue;
-        }
+        if (r == -1 && errno == EINTR) continue;   /* the loop top sees a cancel */
         if (r == -1) {
             seterr(err, "poll(%s): %s", s->path, strerror(errno));
             return -1;
@@ -627,6 +628,30 @@ static int wait_banner(stage *s, int timeout_ms, char *err) {
     }
 }
 
+/* Wait until the controller shows it runs: its banner (it just started, as
+ * an Uno does when the port opens) or, when the banner went to an earlier
+ * client, an answer to '?' probes sent after a short silence. A board still
+ * in its bootloader takes the stray '?' as a reason to start the program.
+ * 1 banner, 2 status report, 0 neither before the deadline, -1 vanished. */
+static int wait_alive(stage *s, int timeout_ms, char *err) {
+    char line[256];
+    long long deadline = now_ms() + timeout_ms, next_probe = now_ms() + 200;
+    for (;;) {
+        long long until = next_probe < deadline ? next_probe : deadline;
+        int r = read_line(s, line, sizeof(line), until, err);
+        if (r < 0) return -1;
+        if (r == 1) {
+            stage_line_kind k = note_line(s, line, NULL);
+            if (k == STAGE_LINE_BANNER) return 1;
+            if (k == STAGE_LINE_STATUS) return 2;
+            continue;
+        }
+        if (now_ms() >= deadline) return 0;
+        if (send_rt(s, RT_STATUS, err) != 0) return -1;
+        next_probe = now_ms() + 500;
+    }
+}
+
 int stage_reset(stage *s, char *err) {
     char derr[STAGE_ERR_LEN];
     int r;
@@ -691,22 +716,20 @@ int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
         if (s->o.log) fprintf(s->o.log, "stage: libserialport: %s: %s; using termios\n", s->path, why);
         if (open_termios(s, err) != 0) return -1;
     }
-    if (s->o.reset_on_open && send_rt(s, RT_RESET, derr) != 0) goto fail;
-    r = wait_banner(s, s->o.banner_timeout_ms, derr);
-    if (r < 0) goto fail;
-    if (r == 0) {
-        /* The banner may have gone to an earlier client: a controller that
-         * answers '?' is running. Otherwise try a soft reset. */
-        if (stage_status(s, NULL, derr) == 0) {
-            if (s->o.log) fprintf(s->o.log, "stage: no banner, but the controller answers\n");
-        } else if (s->dead) {
-            goto fail;
-        } else if (stage_reset(s, derr) != 0) {
-            snprintf(derr, sizeof(derr), "no GRBL banner within %d ms, no answer to '?' or to a "
-                     "soft reset (is this the stage, at %d baud?)", s->o.banner_timeout_ms, s->o.baud);
-            goto fail;
-        }
+    if (s->o.reset_on_open) {
+        if (send_rt(s, RT_RESET, derr) != 0) goto fail;
+        r = wait_banner(s, s->o.banner_timeout_ms, derr);
+    } else {
+        r = wait_alive(s, s->o.banner_timeout_ms, derr);
     }
+    if (r < 0) goto fail;
+    if (r == 0 && stage_reset(s, derr) != 0) {
+        if (s->dead) goto fail;
+        snprintf(derr, sizeof(derr), "no GRBL banner within %d ms, no answer to '?' or to a "
+                 "soft reset (is this the stage, at %d baud?)", s->o.banner_timeout_ms, s->o.baud);
+        goto fail;
+    }
+    if (r == 2 && s->o.log) fprintf(s->o.log, "stage: no banner, but the controller answers\n");
     s->reset_seen = 0;
     if (stage_status(s, NULL, derr) != 0) goto fail;
     if (strcmp(s->last.state, "Alarm") == 0) s->needs_unlock = 1;

@@ -13,6 +13,7 @@
 #ifndef STAGE_H
 #define STAGE_H
 
+#include <signal.h>
 #include <stdio.h>
 #include "stage_proto.h"
 
@@ -27,6 +28,7 @@ typedef struct {
     int home_timeout_ms;      /* deadline of a homing cycle */
     int reset_on_open;        /* 1: always soft-reset after opening (clears a half-sent line) */
     FILE *log;                /* traffic trace ("> line", "< line"), NULL for none */
+    volatile sig_atomic_t *cancel; /* when set non-zero (by a signal handler), waits end with "interrupted" */
 } stage_opts;
 
 typedef struct {
