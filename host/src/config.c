@@ -131,7 +131,7 @@ int config_load(pi_config *c, const char *path, char *err)
         k = trim(k);
         v = trim(eq + 1);
         if (config_set(c, k, v, why) < 0) {
-            snprintf(err, PI_ERR_LEN, "config(%.40s:%d): %.180s", path, lineno, why);
+            snprintf(err, PI_ERR_LEN, "config(%.100s:%d): %.130s", path, lineno, why);
             goto fail;
         }
     }

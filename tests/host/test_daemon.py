@@ -1,0 +1,209 @@
+"""poseinfer as a daemon: the line protocol over unix: and tcp:, the unix:
+frame-server camera, continuous capture, signals, idle CPU."""
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import time
+
+import pytest
+
+from conftest import sphere_frame
+
+cv2 = pytest.importorskip("cv2")
+
+
+class Daemon:
+    def __init__(self, poseinfer, args, scale):
+        self.proc = subprocess.Popen([str(poseinfer)] + [str(a) for a in args], stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True)
+        self.scale = scale
+        self.stderr_lines = []
+        # wait for "listening on ..." on stderr
+        deadline = time.time() + 30 * scale
+        while time.time() < deadline:
+            line = self.proc.stderr.readline()
+            if not line:
+                break
+            self.stderr_lines.append(line)
+            if "listening on" in line:
+                self.addr = line.split("listening on ")[1].split(" ")[0]
+                return
+        self.proc.kill()
+        raise AssertionError("daemon did not start: " + "".join(self.stderr_lines) + self.proc.stderr.read())
+
+    def connect(self):
+        if self.addr.startswith("unix:"):
+            s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            s.connect(self.addr[5:])
+        else:
+            host, port = self.addr[4:].rsplit(":", 1)
+            s = socket.create_connection((host, int(port)))
+        s.settimeout(30 * self.scale)
+        return s.makefile("rw", buffering=1)
+
+    def stop(self, sig=signal.SIGTERM):
+        self.proc.send_signal(sig)
+        rc = self.proc.wait(timeout=30 * self.scale)
+        self.rest = self.proc.stderr.read()
+        return rc
+
+
+def ask(f, line):
+    f.write(line + "\n")
+    f.flush()
+    return json.loads(f.readline())
+
+
+@pytest.fixture
+def daemon(poseinfer, timeout_scale):
+    started = []
+
+    def _start(*args):
+        d = Daemon(poseinfer, args, timeout_scale)
+        started.append(d)
+        return d
+
+    yield _start
+    for d in started:
+        if d.proc.poll() is None:
+            d.proc.kill()
+            d.proc.wait()
+
+
+def test_unix_protocol(daemon, models, frames, tmp_path):
+    sock = tmp_path / "pi.sock"
+    d = daemon("--model", models["good"], "--serve", f"unix:{sock}")
+    f = d.connect()
+    assert ask(f, "ping") == {"pong": True}
+    r = ask(f, f"infer {frames['good.png']}")
+    assert r["file"] == str(frames["good.png"]) and "error" not in r
+    assert {"x", "y", "z", "ms", "decode_ms", "preprocess_ms", "infer_ms"} <= set(r)
+    r = ask(f, f"infer {frames['nosphere.png']}")
+    assert "no sphere found in frame" in r["error"]
+    r = ask(f, f"infer {frames['truncated.png']}")
+    assert "error" in r
+    assert "unknown command" in ask(f, "fly away")["error"]
+    assert "error" in ask(f, "infer")
+    assert "no camera" in ask(f, "grab")["error"]
+    st = ask(f, "stats")
+    assert st["frames"] == 1 and st["errors"] == 2 and st["clients"] == 1 and st["ms_p50"] > 0
+    # two clients at once, pipelined requests
+    g = d.connect()
+    g.write("ping\nping\nstats\n")
+    g.flush()
+    assert json.loads(g.readline()) == {"pong": True}
+    assert json.loads(g.readline()) == {"pong": True}
+    assert json.loads(g.readline())["clients"] == 2
+    assert ask(f, "quit") == {"bye": True}
+    assert f.readline() == ""
+    assert d.stop() == 0
+    assert not sock.exists(), "socket file left behind"
+
+
+def test_tcp_and_long_line(daemon, models, frames):
+    d = daemon("--model", models["good"], "--serve", "tcp:127.0.0.1:0")
+    assert re.match(r"tcp:127\.0\.0\.1:\d+$", d.addr)
+    f = d.connect()
+    assert ask(f, "ping") == {"pong": True}
+    assert ask(f, f"infer {frames['good.jpg']}")["file"] == str(frames["good.jpg"])
+    f.write("x" * 10000 + "\n")
+    f.flush()
+    assert "too long" in json.loads(f.readline())["error"]
+    assert d.stop(signal.SIGINT) == 0
+
+
+def test_sighup_reload(daemon, models, frames, tmp_path):
+    m = tmp_path / "model.onnx"
+    shutil.copy(models["good"], m)
+    d = daemon("--model", m, "--serve", f"unix:{tmp_path / 's'}")
+    f = d.connect()
+    before = ask(f, f"infer {frames['good.png']}")
+    shutil.copy(models["size64"], m)
+    d.proc.send_signal(signal.SIGHUP)
+    deadline = time.time() + 20 * d.scale
+    while ask(f, "stats")["reloads"] < 1:
+        assert time.time() < deadline, "no reload"
+        time.sleep(0.05)
+    after = ask(f, f"infer {frames['good.png']}")
+    assert (after["x"], after["y"]) != (before["x"], before["y"])  # a different model now
+    # a broken model on reload: the old one stays
+    shutil.copy(models["nometa"], m)
+    d.proc.send_signal(signal.SIGHUP)
+    time.sleep(1.0 * d.scale)
+    again = ask(f, f"infer {frames['good.png']}")
+    assert again["x"] == after["x"]
+    r = ask(f, "reload")
+    assert "spherepose.preprocess" in r["error"]
+    assert d.stop() == 0
+    assert "reload failed" in d.rest
+
+
+def test_grab_from_frame_server(daemon, models, frame_server, tmp_path):
+    srv = frame_server([sphere_frame(seed=21), sphere_frame(seed=22, cx=200)])
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--camera", f"unix:{srv.path}")
+    f = d.connect()
+    a = ask(f, "grab")
+    b = ask(f, "grab")
+    assert a["camera"] == f"unix:{srv.path}" and "error" not in a and "error" not in b
+    assert abs(a["cx"] - 320) < 2 and abs(b["cx"] - 200) < 2
+    assert a["decode_ms"] > 0
+    assert srv.grabs == 2
+    assert d.stop() == 0
+
+
+@pytest.mark.parametrize("mode,words", [("error", "camera not ready"), ("silent", "timed out"),
+                                        ("short", "connection closed")])
+def test_frame_server_failures(daemon, models, frame_server, tmp_path, mode, words):
+    srv = frame_server([sphere_frame(seed=23)], mode=mode)
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--camera", f"unix:{srv.path}",
+               "--timeout-ms", "500")
+    f = d.connect()
+    r = ask(f, "grab")
+    assert words in r["error"], r
+    assert ask(f, "ping") == {"pong": True}  # the daemon is fine
+    assert d.stop() == 0
+
+
+def test_continuous(run, models, frame_server):
+    srv = frame_server([sphere_frame(seed=24), sphere_frame(seed=25, cx=250)])
+    r = run("--model", models["good"], "--camera", f"unix:{srv.path}", "--continuous", "--count", "3")
+    assert r.rc == 0, r.stderr
+    assert [l["frame"] for l in r.lines] == [0, 1, 2]
+    for l in r.lines:
+        assert {"x", "y", "z", "ms", "time"} <= set(l) and "error" not in l
+
+
+def test_continuous_stops_on_sigterm(poseinfer, models, frame_server, timeout_scale):
+    srv = frame_server([sphere_frame(seed=26)])
+    p = subprocess.Popen([str(poseinfer), "--model", str(models["good"]), "--camera", f"unix:{srv.path}",
+                          "--continuous", "--interval-ms", "50"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    first = p.stdout.readline()
+    assert "x" in json.loads(first)
+    p.send_signal(signal.SIGTERM)
+    assert p.wait(timeout=20 * timeout_scale) == 0
+
+
+def test_camera_that_is_not_there(run, models, tmp_path):
+    r = run("--model", models["good"], "--camera", f"unix:{tmp_path / 'none.sock'}", "--continuous", "--count", "1")
+    assert r.rc == 2 and "connect" in r.stderr
+
+
+def test_idle_cpu(daemon, models, tmp_path):
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--threads", "2")
+    f = d.connect()
+    ask(f, "ping")
+
+    def cpu():
+        fields = open(f"/proc/{d.proc.pid}/stat").read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    c0, t0 = cpu(), time.time()
+    time.sleep(2.0)
+    used = cpu() - c0
+    assert used / (time.time() - t0) < 0.02, f"idle daemon used {used:.3f} s of CPU in 2 s"
+    assert d.stop() == 0
