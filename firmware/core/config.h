@@ -35,7 +35,7 @@
 // The pulse starts a few cycles after the compare match (ISR entry); the
 // pulse-end compare is set this many cycles later so the pin stays high for
 // at least $0 microseconds.
-#define STEP_PULSE_LATENCY_CYCLES 64
+#define STEP_PULSE_LATENCY_CYCLES 128
 #define STEP_LOW_MIN_CYCLES 64        // minimum low time before the next pulse
 #define MAX_STEP_RATE_HZ 40000UL      // settings are refused above this ($100*$110/60)
 

@@ -7,5 +7,6 @@
 #define PSTR(s) (s)
 #define pgm_read_byte(p) (*(const unsigned char *)(p))
 #define PROGMEM
+#define memcpy_P(d, s, n) memcpy((d), (s), (n))
 #endif
 #endif

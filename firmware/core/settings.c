@@ -4,6 +4,7 @@
 // block also a version byte.
 #include <string.h>
 #include "settings.h"
+#include "pgmspace.h"
 #include "codes.h"
 #include "nuts.h"
 #include "board.h"     // board_eeprom_*, board_stepper_config, board_limits_irq
@@ -14,7 +15,7 @@ settings_t settings;
 uint8_t settings_restored;
 
 // Defaults: 200 steps x 16 microsteps x 90:1 worm / 360 deg = 800 steps/deg.
-static const settings_t settings_defaults = {
+static const settings_t settings_defaults PROGMEM = {
   .steps_per_deg = {800.0f, 800.0f, 800.0f},
   .max_rate = {1800.0f, 1800.0f, 1800.0f},        // 30 deg/s = 24 kHz
   .acceleration = {90.0f, 90.0f, 90.0f},          // deg/s^2
@@ -107,7 +108,7 @@ uint8_t settings_read_build_info(char *line)
 void settings_restore(uint8_t restore_flag)
 {
   if (restore_flag & SETTINGS_RESTORE_DEFAULTS) {
-    memcpy(&settings, &settings_defaults, sizeof(settings));
+    memcpy_P(&settings, &settings_defaults, sizeof(settings));
     settings_write_global();
   }
   if (restore_flag & SETTINGS_RESTORE_PARAMETERS) {

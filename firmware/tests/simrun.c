@@ -1,0 +1,144 @@
+// simrun: run the firmware ELF in simavr with a timed script of serial input,
+// print what it sends, count step pulses per axis. A development and
+// benchmark aid for the firmware alone (sim/stage is the full simulated stage).
+//
+//   simrun FIRMWARE.elf SCRIPT [EEPROM_FILE]
+//
+// SCRIPT lines: "<ms> <text>" sends text + "\n" at <ms> simulated milliseconds;
+// "<ms> !<hex>" sends one raw byte (e.g. "!18" reset, "!3f" '?');
+// "<ms> limit <axis> <0|1>" drives a limit pin (1 = triggered, pin low);
+// "<ms> end" stops. Output ends with one "STEPS x y z" line and timing stats.
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sim_avr.h>
+#include <sim_elf.h>
+#include <avr_uart.h>
+#include <avr_ioport.h>
+#include <avr_eeprom.h>
+
+#define F 16000000UL
+#define BYTE_CYCLES 1389   // one byte at 115200 baud
+
+static avr_t *avr;
+static long steps[3];
+static uint8_t dir[3];
+static avr_cycle_count_t rise[3], last_rise[3];
+static avr_cycle_count_t min_pulse = (avr_cycle_count_t)-1, min_interval[3];
+static unsigned char sendq[65536];
+static size_t sq_head, sq_tail;
+static int uart_xoff;
+static long n_short;
+
+static void uart_out(struct avr_irq_t *irq, uint32_t v, void *p)
+{
+  putchar((int)v);
+  fflush(stdout);
+}
+
+static void xon(struct avr_irq_t *irq, uint32_t v, void *p) { uart_xoff = 0; }
+static void xoff(struct avr_irq_t *irq, uint32_t v, void *p) { uart_xoff = 1; }
+
+static void pin_change(struct avr_irq_t *irq, uint32_t v, void *p)
+{
+  int pin = (int)(intptr_t)p;
+  if (pin >= 5) { dir[pin - 5] = v; return; }
+  int a = pin - 2;
+  if (v) {
+    rise[a] = avr->cycle;
+    steps[a] += dir[a] ? -1 : 1;
+    if (last_rise[a]) {
+      avr_cycle_count_t d = avr->cycle - last_rise[a];
+      if (!min_interval[a] || d < min_interval[a]) min_interval[a] = d;
+    }
+    last_rise[a] = avr->cycle;
+  } else if (rise[a]) {
+    avr_cycle_count_t w = avr->cycle - rise[a];
+    if (w < min_pulse) min_pulse = w;
+    if (w < 160) { n_short++; if (getenv("SIMRUN_DEBUG")) fprintf(stderr, "short pulse axis %d: %llu cycles at %llu\n", a, (unsigned long long)w, (unsigned long long)avr->cycle); }
+  }
+}
+
+static avr_cycle_count_t feed(struct avr_t *a, avr_cycle_count_t when, void *p)
+{
+  if (sq_head != sq_tail && !uart_xoff) {
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), sendq[sq_tail]);
+    sq_tail = (sq_tail + 1) % sizeof(sendq);
+  }
+  return when + BYTE_CYCLES;
+}
+
+static void enqueue(unsigned char c)
+{
+  sendq[sq_head] = c;
+  sq_head = (sq_head + 1) % sizeof(sendq);
+}
+
+int main(int argc, char **argv)
+{
+  if (argc < 3) { fprintf(stderr, "usage: simrun FIRMWARE.elf SCRIPT [EEPROM]\n"); return 2; }
+  elf_firmware_t fw = {0};
+  if (elf_read_firmware(argv[1], &fw)) { fprintf(stderr, "simrun: cannot read %s\n", argv[1]); return 1; }
+  avr = avr_make_mcu_by_name("atmega328p");
+  avr_init(avr);
+  avr->frequency = F;
+  avr_load_firmware(avr, &fw);
+  avr->log = 0;
+  static uint8_t ee[1024];
+  if (argc > 3) {
+    FILE *e = fopen(argv[3], "rb");
+    if (e) {
+      size_t n = fread(ee, 1, sizeof(ee), e);
+      fclose(e);
+      avr_eeprom_desc_t d = {.ee = ee, .offset = 0, .size = (uint32_t)n};
+      avr_ioctl(avr, AVR_IOCTL_EEPROM_SET, &d);
+    }
+  }
+  uint32_t f0 = 0;
+  avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &f0);
+  f0 &= ~AVR_UART_FLAG_STDIO;
+  avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &f0);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), xon, NULL);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), xoff, NULL);
+  for (int pin = 2; pin <= 7; pin++)
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), pin), pin_change, (void *)(intptr_t)pin);
+  // Limit pins idle high (pull-ups, switch open).
+  for (int pin = 1; pin <= 3; pin++) avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), pin), 1);
+  avr_cycle_timer_register(avr, BYTE_CYCLES, feed, NULL);
+
+  FILE *s = fopen(argv[2], "r");
+  if (!s) { fprintf(stderr, "simrun: cannot open %s\n", argv[2]); return 1; }
+  char line[512];
+  int state = cpu_Running;
+  while (fgets(line, sizeof(line), s)) {
+    char *text;
+    double ms = strtod(line, &text);
+    if (text == line) continue;
+    if (*text == ' ') text++;
+    text[strcspn(text, "\r\n")] = 0;
+    avr_cycle_count_t until = (avr_cycle_count_t)(ms * (F / 1000));
+    while (avr->cycle < until && state != cpu_Done && state != cpu_Crashed) state = avr_run(avr);
+    if (!strcmp(text, "end")) break;
+    if (text[0] == '!') { enqueue((unsigned char)strtol(text + 1, NULL, 16)); continue; }
+    int ax, on;
+    if (sscanf(text, "limit %d %d", &ax, &on) == 2) {
+      avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 1 + ax), on ? 0 : 1);
+      continue;
+    }
+    for (char *c = text; *c; c++) enqueue((unsigned char)*c);
+    enqueue('\n');
+  }
+  printf("\nSTEPS %ld %ld %ld\n", steps[0], steps[1], steps[2]);
+  printf("SHORT_PULSES %ld\n", n_short);
+  printf("MIN_PULSE_CYCLES %llu MIN_INTERVAL %llu %llu %llu CYCLE %llu\n", (unsigned long long)min_pulse,
+         (unsigned long long)min_interval[0], (unsigned long long)min_interval[1],
+         (unsigned long long)min_interval[2], (unsigned long long)avr->cycle);
+  if (argc > 3) {
+    avr_eeprom_desc_t d = {.ee = NULL, .offset = 0, .size = 1024};
+    avr_ioctl(avr, AVR_IOCTL_EEPROM_GET, &d);
+    FILE *e = fopen(argv[3], "wb");
+    if (e && d.ee) { fwrite(d.ee, 1, 1024, e); fclose(e); }
+  }
+  return state == cpu_Crashed;
+}
