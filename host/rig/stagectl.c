@@ -84,7 +84,7 @@ int main(int argc, char **argv) {
     };
     char err[STAGE_ERR_LEN];
     const char *port = "auto", *cmd;
-    double feed = 0;
+    double feed = 0, xyz[3] = {0, 0, 0}, setn = 0, setv = 0;
     int rehome = 0, c, rc = 1, nargs;
     stage_opts o;
     stage s;
@@ -147,6 +147,22 @@ int main(int argc, char **argv) {
         }
     }
 
+    if (strcmp(cmd, "move") == 0) {
+        int i;
+        for (i = 0; i < 3; i++) {
+            if (parse_num(argv[optind + 1 + i], &xyz[i]) != 0) {
+                fprintf(stderr, "stagectl: move: '%s' is not a number of degrees\n", argv[optind + 1 + i]);
+                return 2;
+            }
+        }
+    } else if (strcmp(cmd, "set") == 0) {
+        if (parse_num(argv[optind + 1], &setn) != 0 || setn < 0 || setn > 9999 || setn != (int)setn ||
+            parse_num(argv[optind + 2], &setv) != 0) {
+            fprintf(stderr, "stagectl: set: needs an integer setting number and a number\n");
+            return 2;
+        }
+    }
+
     if (stage_open(&s, port, &o, err) != 0) {
         fprintf(stderr, "stagectl: %s\n", err);
         return 1;
@@ -159,15 +175,6 @@ int main(int argc, char **argv) {
         if (stage_home(&s, err) != 0) goto fail;
         print_status(&s.last);
     } else if (strcmp(cmd, "move") == 0) {
-        double xyz[3];
-        int i;
-        for (i = 0; i < 3; i++) {
-            if (parse_num(argv[optind + 1 + i], &xyz[i]) != 0) {
-                fprintf(stderr, "stagectl: move: '%s' is not a number of degrees\n", argv[optind + 1 + i]);
-                rc = 2;
-                goto out;
-            }
-        }
         if (stage_move_wait(&s, xyz, feed, err) != 0) goto fail;
         print_status(&s.last);
     } else if (strcmp(cmd, "settings") == 0) {
@@ -176,14 +183,7 @@ int main(int argc, char **argv) {
         if (stage_get_settings(&s, set, STAGE_MAX_SETTINGS, &n, err) != 0) goto fail;
         for (i = 0; i < n; i++) printf("$%d=%.3f\n", set[i].n, set[i].value);
     } else if (strcmp(cmd, "set") == 0) {
-        double n, v;
-        if (parse_num(argv[optind + 1], &n) != 0 || n < 0 || n != (int)n ||
-            parse_num(argv[optind + 2], &v) != 0) {
-            fprintf(stderr, "stagectl: set: needs an integer setting number and a number\n");
-            rc = 2;
-            goto out;
-        }
-        if (stage_set_setting(&s, (int)n, v, err) != 0) goto fail;
+        if (stage_set_setting(&s, (int)setn, setv, err) != 0) goto fail;
     } else if (strcmp(cmd, "unlock") == 0) {
         if (stage_unlock(&s, err) != 0) goto fail;
     } else if (strcmp(cmd, "hold") == 0) {

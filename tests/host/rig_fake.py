@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A scripted fake GRBL controller on a pseudo-terminal, for the stage client's tests.
 
-    rig_fake.py SCRIPT        (SCRIPT "-" reads stdin)
+    rig_fake.py [--log FILE] SCRIPT        (SCRIPT "-" reads stdin)
 
 Prints "PTY <path>" on stdout, then plays SCRIPT against whoever opens that
 path. Real-time bytes ('?', '!', '~', 0x18) are taken out of the stream at any
@@ -25,6 +25,9 @@ Script lines (one directive each; '#' starts a comment line):
                    polls (default 2) then Idle at the target, 0x18 -> banner
   end              the script is over: further lines from the host fail
 
+--log FILE records what the host sent, one item a line: "line TEXT" or
+"rt 0xNN" for a real-time byte (the '?' polls are counted, not logged).
+
 Exit status (after SIGTERM, or at "close"): 0 when every expectation held and
 the script ran to its end, 1 on a failed expectation (printed on stderr, and
 the pty is closed at once), 2 when stopped while the script still waited for
@@ -44,8 +47,9 @@ RT = {0x3F, 0x21, 0x7E, 0x18, 0x84, 0x85}
 
 
 class Fake:
-    def __init__(self, lines):
+    def __init__(self, lines, log=None):
         self.lines = lines
+        self.log = log
         self.pc = 0
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
@@ -92,12 +96,16 @@ class Fake:
                         self.polls += 1
                 else:
                     self.rt.append(b)
+                    self.note("rt 0x%02x" % b)
+                    if self.auto is not None and b == 0x21:
+                        self.auto_hold()
                     if self.auto is not None and b == 0x18:
                         self.auto_reset()
                 continue
             if b == 0x0A:
                 line = self.buf.decode("latin-1").strip("\r")
                 self.buf = b""
+                self.note("line " + line)
                 if self.auto is not None:
                     self.auto_line(line)
                 elif self.ended:
@@ -106,6 +114,11 @@ class Fake:
                     self.rx_lines.append(line)
             else:
                 self.buf += bytes([b])
+
+    def note(self, text):
+        if self.log:
+            self.log.write(text + "\n")
+            self.log.flush()
 
     def wait(self, pred, what):
         deadline = time.monotonic() + self.timeout
@@ -135,9 +148,18 @@ class Fake:
             pos, st = a["pos"], a["state"]
         self.send("<%s|MPos:%.3f,%.3f,%.3f|FS:0,0>" % (st, pos[0], pos[1], pos[2]))
 
+    def auto_hold(self):
+        # Feed hold: the motion stops (at once, here) where it is.
+        a = self.auto
+        if a["run"] > 0:
+            a["run"] = 0
+            a["pos"] = list(a["from"])
+            a["state"] = "Hold:0"
+
     def auto_reset(self):
         a = self.auto
         a["run"] = 0
+        a["state"] = "Idle"
         self.send(BANNER)
 
     def auto_line(self, line):
@@ -242,12 +264,17 @@ class Fake:
 
 
 def main():
-    if len(sys.argv) != 2:
-        sys.stderr.write("usage: rig_fake.py SCRIPT\n")
+    args = sys.argv[1:]
+    log = None
+    if len(args) == 3 and args[0] == "--log":
+        log = open(args[1], "a", encoding="latin-1")
+        args = args[2:]
+    if len(args) != 1:
+        sys.stderr.write("usage: rig_fake.py [--log FILE] SCRIPT\n")
         return 2
-    src = sys.stdin if sys.argv[1] == "-" else open(sys.argv[1], encoding="utf-8")
+    src = sys.stdin if args[0] == "-" else open(args[0], encoding="utf-8")
     lines = src.read().splitlines()
-    fake = Fake(lines)
+    fake = Fake(lines, log)
 
     def on_term(signum, frame):
         # Finish the directives that need nothing from the host (the client

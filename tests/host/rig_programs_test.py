@@ -1,0 +1,363 @@
+"""stagectl and poserig driven from outside, against the scripted fake GRBL
+(tests/host/rig_fake.py) on a pty and a fake frame server on a Unix socket.
+
+The binaries come from `make -C host/rig` (host/build/rig/); poserig also
+needs libposeinfer (`make -C host`). A missing binary is a test failure with
+the command that builds it, not a skip: `make test` builds them first.
+"""
+import csv
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+RIG = ROOT / "host" / "build" / "rig"
+FAKE = Path(__file__).resolve().parent / "rig_fake.py"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+cv2 = pytest.importorskip("cv2")
+
+BANNER = "send Grbl 1.1h ['$' for help]"
+
+
+def binary(name):
+    p = RIG / name
+    if not p.exists():
+        pytest.fail(f"{p} not built: run `make -C host && make -C host/rig`")
+    return p
+
+
+class Fake:
+    """rig_fake.py on a script; .pty, .log_lines(), .stop() -> exit status."""
+
+    def __init__(self, tmp, script):
+        self.script = Path(tmp) / "fake.script"
+        self.script.write_text(script)
+        self.log = Path(tmp) / "fake.log"
+        self.log.write_text("")
+        self.proc = subprocess.Popen([sys.executable, str(FAKE), "--log", str(self.log), str(self.script)],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = self.proc.stdout.readline()
+        assert line.startswith("PTY "), line + self.proc.stderr.read()
+        self.pty = line.split()[1]
+
+    def log_lines(self):
+        return self.log.read_text(encoding="latin-1").splitlines()
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.stderr = self.proc.stderr.read()
+        return self.proc.returncode
+
+
+@pytest.fixture
+def fake(tmp_path):
+    made = []
+
+    def start(script):
+        f = Fake(tmp_path, script)
+        made.append(f)
+        return f
+
+    yield start
+    for f in made:
+        f.stop()
+
+
+FAST = ["--banner-timeout", "1000", "--timeout", "1000", "--poll", "20", "--move-timeout", "5000"]
+
+
+def stagectl(*args, timeout=30):
+    return subprocess.run([str(binary("stagectl")), *FAST, *[str(a) for a in args]],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+# ---- stagectl ----------------------------------------------------------
+
+def test_stagectl_usage():
+    exe = binary("stagectl")
+    r = subprocess.run([str(exe), "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "move X Y Z" in r.stdout
+    for args in ([], ["frobnicate"], ["move", "1", "2"], ["--port", "/dev/null", "move", "1", "2", "x"],
+                 ["--timeout", "abc", "pos"], ["set", "1"]):
+        r = subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=10)
+        assert r.returncode == 2, (args, r.stderr)
+        assert r.stderr
+
+
+def test_stagectl_list_runs_without_hardware():
+    r = subprocess.run([str(binary("stagectl")), "list"], capture_output=True, text=True, timeout=10)
+    assert r.returncode == 0, r.stderr
+
+
+def test_stagectl_session(fake):
+    f = fake(BANNER + "\nauto 3\n")
+    r = stagectl("--port", f.pty, "settings")
+    assert r.returncode == 0, r.stderr
+    assert "$100=800.000" in r.stdout.splitlines()
+    assert stagectl("--port", f.pty, "set", "101", "812.5").returncode == 0
+    r = stagectl("--port", f.pty, "move", "-5", "12.25", "0.125")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[:5] == ["Idle", "MPos", "-5.000", "12.250", "0.125"]
+    r = stagectl("--port", f.pty, "pos")
+    assert r.returncode == 0 and "MPos -5.000 12.250 0.125" in r.stdout
+    sent = [l[5:] for l in f.log_lines() if l.startswith("line ")]
+    assert sent == ["$$", "$101=812.5", "G90 G0 X-5 Y12.25 Z0.125", "G4 P0"]
+
+
+def test_stagectl_reports_error_code(fake):
+    f = fake(BANNER + "\npolls 1\nexpect G90 G0 X1 Y2 Z3\nsend error:15\nend\n")
+    r = stagectl("--port", f.pty, "move", "1", "2", "3")
+    assert r.returncode == 1
+    assert "error:15" in r.stderr and "travel" in r.stderr
+    assert f.stop() == 0, f.stderr
+
+
+def test_stagectl_vanished_port(fake):
+    f = fake(BANNER + "\npolls 1\nexpect $H\nclose\n")
+    r = stagectl("--port", f.pty, "home")
+    assert r.returncode == 1
+    assert "vanished" in r.stderr
+
+
+def test_stagectl_missing_port():
+    r = stagectl("--port", "/nonexistent/ttyACM9", "pos")
+    assert r.returncode == 1
+    assert "/nonexistent/ttyACM9" in r.stderr
+
+
+# ---- poserig -----------------------------------------------------------
+
+def sphere_frame(seed=0, blank=False):
+    """A 320x256 frame: dark background and, unless blank, a striped disc."""
+    img = np.full((256, 320, 3), 30, np.uint8)
+    if not blank:
+        rng = np.random.default_rng(seed)
+        disc = np.zeros_like(img)
+        for i in range(0, 320, 12):
+            disc[:, i:i + 6] = rng.integers(60, 255, 3)
+        mask = np.zeros((256, 320), np.uint8)
+        cv2.circle(mask, (170, 120), 70, 255, -1)
+        img[mask > 0] = disc[mask > 0]
+    ok, png = cv2.imencode(".png", img)
+    assert ok
+    return png.tobytes()
+
+
+class FrameServer:
+    """The unix: frame source protocol: 'grab\\n' -> 'FRAME n\\n' + PNG, or 'ERROR msg\\n'.
+    replies: a list of bytes (a frame) or str (an error), used in turn, the last repeated."""
+
+    def __init__(self, path, replies):
+        self.path = str(path)
+        self.replies = list(replies)
+        self.grabs = 0
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.sock.bind(self.path)
+        self.sock.listen(4)
+        self.sock.settimeout(0.2)
+        self.stopping = False
+        self.thread = threading.Thread(target=self.serve, daemon=True)
+        self.thread.start()
+
+    def serve(self):
+        while not self.stopping:
+            try:
+                conn, _ = self.sock.accept()
+            except (socket.timeout, OSError):
+                continue
+            with conn:
+                f = conn.makefile("rb")
+                while True:
+                    line = f.readline()
+                    if not line:
+                        break
+                    if line.strip() != b"grab":
+                        conn.sendall(b"ERROR unknown request\n")
+                        continue
+                    rep = self.replies[min(self.grabs, len(self.replies) - 1)]
+                    self.grabs += 1
+                    if isinstance(rep, str):
+                        conn.sendall(b"ERROR " + rep.encode() + b"\n")
+                    else:
+                        conn.sendall(b"FRAME %d\n" % len(rep) + rep)
+
+    def close(self):
+        self.stopping = True
+        self.thread.join(2)
+        self.sock.close()
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    import make_model
+    import onnx
+    p = tmp_path_factory.mktemp("model") / "model.onnx"
+    onnx.save(make_model.build("good"), str(p))
+    return p
+
+
+@pytest.fixture
+def camera(tmp_path):
+    servers = []
+
+    def start(replies):
+        s = FrameServer(tmp_path / f"cam{len(servers)}.sock", replies)
+        servers.append(s)
+        return s
+
+    yield start
+    for s in servers:
+        s.close()
+
+
+def poserig(*args, timeout=60, **kw):
+    cmd = [str(binary("poserig")), *FAST, *[str(a) for a in args]]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def read_rows(out):
+    with open(out / "poses.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def wrap(a):
+    w = math.fmod(a, 360.0)
+    if w > 180:
+        w -= 360
+    elif w <= -180:
+        w += 360
+    return w
+
+
+def test_poserig_usage(tmp_path, model):
+    exe = binary("poserig")
+    r = subprocess.run([str(exe), "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "--plan" in r.stdout
+    bad_plan = tmp_path / "bad.csv"
+    bad_plan.write_text("x,y,z\n1,2,3\n4,5\n")
+    for args in ([], ["--camera", "unix:/x", "--model", model],
+                 ["--camera", "unix:/x", "--model", model, "--random", "3", "--plan", bad_plan],
+                 ["--camera", "unix:/x", "--model", model, "--random", "0"],
+                 ["--camera", "unix:/x", "--model", model, "--random", "3", "--range-x", "5,1"]):
+        r = subprocess.run([str(exe), *map(str, args)], capture_output=True, text=True, timeout=20)
+        assert r.returncode == 2, (args, r.stderr)
+    r = subprocess.run([str(exe), "--camera", "unix:/x", "--model", str(model), "--plan", str(bad_plan),
+                        "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=20)
+    assert r.returncode == 2 and f"{bad_plan}:3" in r.stderr
+
+
+def test_poserig_random_run(tmp_path, fake, camera, model):
+    f = fake(BANNER + "\nauto 2\n")
+    cam = camera([sphere_frame(1)])
+    out = tmp_path / "run"
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", model, "--random", 6,
+                "--seed", 5, "--range-y", "-10,10", "--range-z", "0,0", "--settle", 10,
+                "--out", out, "--save-frames")
+    assert r.returncode == 0, r.stderr
+    rows = read_rows(out)
+    assert len(rows) == 6
+    errs = []
+    for i, row in enumerate(rows):
+        assert row["status"] == "ok"
+        assert int(row["index"]) == i
+        cmd = [float(row[f"cmd_{a}"]) for a in "xyz"]
+        assert -30 <= cmd[0] <= 30 and -10 <= cmd[1] <= 10 and cmd[2] == 0
+        # The stage reported the commanded pose (the fake moves exactly).
+        assert [float(row[f"mpos_{a}"]) for a in "xyz"] == pytest.approx(cmd, abs=1e-3)
+        est = [float(row[f"est_{a}"]) for a in "xyz"]
+        e = [abs(wrap(est[k] - cmd[k])) for k in range(3)]
+        assert [float(row[f"err_{a}"]) for a in "xyz"] == pytest.approx(e, abs=2e-4)
+        errs.append(e)
+        assert (out / row["frame"]).exists()
+    # Table 3 on stdout: conventions.md's definitions, recomputed here.
+    e = np.array(errs)
+    table = {l.split()[0]: [float(v) for v in l.split()[1:]] for l in r.stdout.splitlines()
+             if l.split() and l.split()[0] in ("X-axis", "Y-axis", "Z-axis")}
+    for k, name in enumerate(("X-axis", "Y-axis", "Z-axis")):
+        mean, std, rmse, mx = table[name]
+        assert mean == pytest.approx(e[:, k].mean(), abs=2e-3)
+        assert std == pytest.approx(e[:, k].std(), abs=2e-3)
+        assert rmse == pytest.approx(np.sqrt((e[:, k] ** 2).mean()), abs=2e-3)
+        assert mx == pytest.approx(e[:, k].max(), abs=2e-3)
+    mae_line = [l for l in r.stdout.splitlines() if l.startswith("MAE")][0].split()
+    assert float(mae_line[1]) == pytest.approx(e.mean(), abs=2e-3)
+    assert float(mae_line[3]) == pytest.approx(np.sqrt((e ** 2).mean()), abs=2e-3)
+    assert (out / "summary.md").read_text().count("| X-axis |") == 1
+    assert (out / "boxplot.svg").read_text().startswith("<svg")
+    assert not list(out.glob("*.tmp"))
+    # Same seed, same plan: the commanded poses are reproducible.
+    sent = [l for l in f.log_lines() if l.startswith("line G90")]
+    assert len(sent) == 6
+    assert cam.grabs == 6
+
+
+def test_poserig_plan_with_failures(tmp_path, fake, camera, model):
+    plan = tmp_path / "plan.csv"
+    plan.write_text("x,y,z\n1,2,3\n-4,5,-6\n7.5,0,0\n10,10,10\n")
+    f = fake(BANNER + "\nauto 1\n")
+    # Pose 1: no sphere in the frame; pose 2: the camera reports an error.
+    cam = camera([sphere_frame(2), sphere_frame(blank=True), "sensor timeout", sphere_frame(3)])
+    out = tmp_path / "run"
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", model, "--plan", plan,
+                "--settle", 0, "--out", out, "--home")
+    assert r.returncode == 1, r.stderr
+    rows = read_rows(out)
+    assert [row["status"] == "ok" for row in rows] == [True, False, False, True]
+    assert "sphere" in rows[1]["status"]
+    assert "sensor timeout" in rows[2]["status"]
+    assert rows[1]["err_x"] == ""
+    assert "2 failed" in r.stdout
+    assert "Poses without an estimate" in (out / "summary.md").read_text()
+    assert [l[5:] for l in f.log_lines() if l.startswith("line ")][0] == "$H"
+
+
+def test_poserig_refuses_alarm_without_home(tmp_path, fake, camera, model):
+    f = fake(BANNER + "\nsend [MSG:'$H'|'$X' to unlock]\nstate <Alarm|MPos:0.000,0.000,0.000|FS:0,0>\nend\n")
+    cam = camera([sphere_frame(1)])
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", model, "--random", 2,
+                "--out", tmp_path / "run")
+    assert r.returncode == 2
+    assert "Alarm" in r.stderr and "--home" in r.stderr
+    assert f.stop() == 0, f.stderr   # nothing but status queries was sent
+
+
+def test_poserig_sigint_keeps_partial_results(tmp_path, fake, camera, model):
+    # Moves after the second one never finish: poserig is waiting for Idle
+    # when SIGINT comes, and must hold and reset the stage and keep its rows.
+    f = fake(BANNER + "\nauto 1\n")
+    cam = camera([sphere_frame(4)])
+    out = tmp_path / "run"
+    proc = subprocess.Popen([str(binary("poserig")), *FAST, "--port", f.pty, "--camera", f"unix:{cam.path}",
+                             "--model", str(model), "--random", "50", "--settle", "300", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        if (out / "poses.csv").exists() and len(read_rows(out)) >= 2:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=20)
+    assert proc.returncode == 128 + signal.SIGINT, stderr
+    rows = read_rows(out)
+    assert 2 <= len(rows) < 50
+    assert "interrupted" in stdout
+    assert (out / "summary.md").exists() and "stopped early" in (out / "summary.md").read_text()
+    log = f.log_lines()
+    assert "rt 0x21" in log and "rt 0x18" in log
+    assert log.index("rt 0x21") < log.index("rt 0x18")
