@@ -1,6 +1,6 @@
 """posetrain: train, evaluate, export and study MobileNet pose regressors.
 
-    posetrain train  --data DIR --out DIR [...]      # DIR/train, DIR/val, [DIR/test, DIR/offgrid]
+    posetrain train  --data DIR --out DIR [...]      # DIR/train, DIR/val, [DIR/test, DIR/test_offgrid]
     posetrain eval   --model best.pth|model.onnx --data DIR --out DIR
     posetrain export --checkpoint best.pth --out model.onnx [--data DIR]
     posetrain study  --profile quick|p1 --out DIR
@@ -30,7 +30,10 @@ from .models import ARCHS, HEADS, build
 
 
 class _Formatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    pass
+    def _get_help_string(self, action):
+        if action.default is None:  # the help text says what happens
+            return action.help
+        return super()._get_help_string(action)
 
 
 def _add_common(p):
@@ -47,7 +50,7 @@ def get_args_parser():
     sub.required = True
 
     t = sub.add_parser("train", help="train a model", formatter_class=_Formatter)
-    t.add_argument("--data", required=True, help="dataset folder with train/ and val/ (test/, offgrid/ optional)")
+    t.add_argument("--data", required=True, help="dataset folder (sim dataset) with train/ and val/ (test/, test_offgrid/ optional)")
     t.add_argument("--extra-train", action="append", default=[], metavar="DIR",
                    help="more training split folders (repeatable), e.g. continuous or randomised poses")
     t.add_argument("--out", required=True, help="output folder (checkpoints, log.csv, report, model.onnx)")
@@ -57,7 +60,8 @@ def get_args_parser():
     t.add_argument("--head", default="euler", choices=HEADS, help="output head")
     t.add_argument("--width-mult", type=float, default=1.0, help="MobileNet width multiplier")
     t.add_argument("--dropout", type=float, default=0.0, help="dropout before the last layer")
-    t.add_argument("--epochs", type=int, default=20, help="epochs")
+    t.add_argument("--epochs", type=int, default=None,
+                   help="epochs (default: 20; with --resume: the checkpoint's, or more to extend the run)")
     t.add_argument("--batch-size", "-b", type=int, default=32, help="batch size")
     t.add_argument("--lr", type=float, default=5e-4, help="AdamW learning rate (cosine-annealed per step to 0)")
     t.add_argument("--weight-decay", type=float, default=0.01, help="AdamW weight decay")
@@ -175,10 +179,13 @@ def train(args):
     start_epoch, ck = 0, None
     if args.resume:
         ck = torch.load(args.resume, map_location="cpu", weights_only=False)
-        keep = {k: getattr(args, k) for k in ("resume", "device", "threads", "progress", "out")}
+        keep = {k: getattr(args, k) for k in ("resume", "device", "threads", "progress", "out", "export")}
+        epochs = args.epochs
         vars(args).update(ck["args"])
         vars(args).update(keep)
+        args.epochs = epochs or args.epochs
         start_epoch = ck["epoch"] + 1
+    args.epochs = args.epochs or 20
     set_threads(args.threads)
     set_seed(args.seed)
     device = pick_device(args.device)

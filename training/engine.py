@@ -11,7 +11,7 @@ from . import plots
 from .data import prepare_batch
 from .losses import abs_err, pose_loss
 
-SPLITS = ("val", "test", "offgrid")
+SPLITS = ("val", "test", "test_offgrid")
 
 
 def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, epoch):
@@ -36,7 +36,7 @@ def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, 
         optimizer.step()
         scheduler.step()
         b = len(y)
-        tot_loss += float(loss) * b
+        tot_loss += float(loss.detach()) * b
         tot_err += float(abs_err(out["euler_deg"].detach(), y).mean()) * b
         n += b
         bar.set_postfix(loss=f"{tot_loss / n:.3f}", mae=f"{tot_err / n:.3f}")

@@ -80,7 +80,7 @@ def split_figures(pred, true, out_dir, split, label=""):
     return names
 
 
-def study_bars(rows, path, keys=(("val", "mae"), ("test", "mae"), ("offgrid", "mae"))):
+def study_bars(rows, path, keys=(("val", "mae"), ("test", "mae"), ("test_offgrid", "mae"))):
     """Grouped bars of MAE per texture and split. rows: [(texture, {split: metrics})]."""
     fig, ax = plt.subplots(figsize=(10, 4))
     n = len(keys)
