@@ -266,6 +266,10 @@ class Stage:
             time.sleep(poll)
 
     def wait_idle(self, timeout=60.0):
+        """Wait for the motion just queued to finish: give the firmware 20 ms of
+        simulated time to start it (an 'ok' comes before the cycle starts),
+        then poll until Idle."""
+        self.run_cycles(F_CPU // 50)
         return self.wait_state("Idle", timeout)
 
     def banner(self, timeout=10.0):
