@@ -122,7 +122,7 @@ static int do_dir(pi_ctx *ctx, const char *dir, const pi_config *cfg, sbuf *s)
     struct dirent *e;
     char **names = NULL;
     size_t n = 0, cap = 0;
-    int failed = 0;
+    int failed = 0, oom = 0;
     char err[PI_ERR_LEN];
     if (!d) {
         snprintf(err, sizeof err, "opendir(%s): %s", dir, strerror(errno));
@@ -135,23 +135,28 @@ static int do_dir(pi_ctx *ctx, const char *dir, const pi_config *cfg, sbuf *s)
         char *p;
         if (!is_image_name(e->d_name)) continue;
         if (n == cap) {
-            char **nn = realloc(names, (cap = cap ? cap * 2 : 64) * sizeof *nn);
-            if (!nn) break;
+            char **nn = realloc(names, (cap ? cap * 2 : 64) * sizeof *nn);
+            if (!nn) { oom = 1; break; }
             names = nn;
+            cap = cap ? cap * 2 : 64;
         }
         len = strlen(dir) + strlen(e->d_name) + 2;
         p = malloc(len);
-        if (!p) break;
+        if (!p) { oom = 1; break; }
         snprintf(p, len, "%s%s%s", dir, dir[strlen(dir) - 1] == '/' ? "" : "/", e->d_name);
         names[n++] = p;
     }
     closedir(d);
-    if (n == 0) {
+    if (oom) {
+        error_json(s, "file", dir, "out of memory listing the directory");
+        print_line(s);
+        failed = 1;
+    } else if (n == 0) {
         error_json(s, "file", dir, "no image files in directory");
         print_line(s);
         failed = 1;
     }
-    qsort(names, n, sizeof *names, cmp_str);
+    if (n > 1) qsort(names, n, sizeof *names, cmp_str);
     for (size_t i = 0; i < n; i++) {
         if (do_file(ctx, names[i], cfg, s) < 0) failed++;
         free(names[i]);

@@ -209,7 +209,7 @@ def test_config_file(run, models, frames, tmp_path):
     assert r.rc == 2 and "nometa.onnx" in r.stderr
     cfg.write_text("model = x.onnx\nspeed = 11\n")
     r = run("--config", cfg, frames["good.png"])
-    assert r.rc == 2 and ":2:" in r.stderr and "speed" in r.stderr
+    assert r.rc == 2 and ":2)" in r.stderr and "speed" in r.stderr
 
 
 def test_rendered_frames(run, models, tmp_path):
