@@ -715,6 +715,8 @@ int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
     if (open_libserialport(s, why, sizeof(why)) != 0) {
         if (s->o.log) fprintf(s->o.log, "stage: libserialport: %s: %s; using termios\n", s->path, why);
         if (open_termios(s, err) != 0) return -1;
+    } else if (s->o.log) {
+        fprintf(s->o.log, "stage: opened %s with libserialport\n", s->path);
     }
     if (s->o.reset_on_open) {
         if (send_rt(s, RT_RESET, derr) != 0) goto fail;
