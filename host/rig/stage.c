@@ -678,7 +678,10 @@ int stage_recover(stage *s, int rehome, char *err) {
     int alarm = s->last_alarm;
     if (stage_reset(s, derr) != 0) goto fail;
     if (alarm == 0) alarm = s->last_alarm;
-    if (strcmp(s->last.state, "Alarm") != 0) return 0;
+    if (strcmp(s->last.state, "Alarm") != 0) {
+        s->last_alarm = 0;
+        return 0;
+    }
     /* GRBL reports no alarm code after a reset that lost the position
      * (ALARM:3 comes before the banner, if at all), so Alarm without a known
      * harmless code counts as a lost position. */
