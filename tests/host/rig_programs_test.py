@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-RIG = ROOT / "host" / "build" / "rig"
+RIG = Path(os.environ.get("RIG_BIN", ROOT / "host" / "build" / "rig"))   # RIG_BIN: e.g. a sanitizer build
 FAKE = Path(__file__).resolve().parent / "rig_fake.py"
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -82,9 +82,15 @@ def fake(tmp_path):
 FAST = ["--banner-timeout", "1000", "--timeout", "1000", "--poll", "20", "--move-timeout", "5000"]
 
 
+def clean(r):
+    """No sanitizer report (RIG_BIN may point at an ASan/UBSan build)."""
+    assert "Sanitizer" not in r.stderr and "runtime error" not in r.stderr, r.stderr
+    return r
+
+
 def stagectl(*args, timeout=30):
-    return subprocess.run([str(binary("stagectl")), *FAST, *[str(a) for a in args]],
-                          capture_output=True, text=True, timeout=timeout)
+    return clean(subprocess.run([str(binary("stagectl")), *FAST, *[str(a) for a in args]],
+                                capture_output=True, text=True, timeout=timeout))
 
 
 # ---- stagectl ----------------------------------------------------------
@@ -228,7 +234,7 @@ def camera(tmp_path):
 
 def poserig(*args, timeout=60, **kw):
     cmd = [str(binary("poserig")), *FAST, *[str(a) for a in args]]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw)
+    return clean(subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw))
 
 
 def read_rows(out):
@@ -353,6 +359,7 @@ def test_poserig_sigint_keeps_partial_results(tmp_path, fake, camera, model):
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=20)
+    assert "Sanitizer" not in stderr and "runtime error" not in stderr, stderr
     assert proc.returncode == 128 + signal.SIGINT, stderr
     rows = read_rows(out)
     assert 2 <= len(rows) < 50
