@@ -59,7 +59,9 @@ static const char *alarm_texts[] = {
     [7] = "homing fail: safety door opened during homing",
     [8] = "homing fail: pull-off did not clear the limit switch",
     [9] = "homing fail: limit switch not found within the search distance",
-    [10] = "homing fail: second limit switch not found",
+    /* This firmware: its fault path (watchdog reset, internal error);
+     * GRBL 1.1h uses 10 for a dual-axis homing failure. */
+    [10] = "controller fault (watchdog or internal error), drivers off: re-home",
 };
 
 #define NELEM(a) ((int)(sizeof(a) / sizeof((a)[0])))
