@@ -9,6 +9,7 @@
 
 #include "avr_ioport.h"
 #include "sim_interrupts.h"
+#include "sim_cycle_timers.h"
 #include "stage.h"
 
 /* data-space addresses of the atmega328p port registers */
@@ -41,6 +42,28 @@ static void min_update(uint64_t *slot, uint64_t v)
 		*slot = v;
 }
 
+static void limit_drive(struct stage *s, struct stage_axis *a, int level)
+{
+	if (a->limit_level_driven != level) {
+		a->limit_level_driven = level;
+		avr_raise_irq(s->limit_irq[a->index], (uint32_t)level);
+	}
+}
+
+static avr_cycle_count_t bounce_timer(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+	struct stage_axis *a = param;
+	struct stage *s = a->stage;
+	int settled = !a->limit_active;
+
+	(void)avr;
+	if (a->bounce_left > 0)
+		a->bounce_left--;
+	/* odd counts left: the contact is open again for a moment */
+	limit_drive(s, a, (a->bounce_left & 1) ? !settled : settled);
+	return a->bounce_left ? when + s->bounce_cycles : 0;
+}
+
 /* Switch model: pressed once the axis is at or beyond the switch position in
  * the switch's direction (and within limit_width past it, if set); once
  * pressed it releases only after backing off by limit_hyst. */
@@ -57,18 +80,31 @@ static void limit_update(struct stage *s, struct stage_axis *a)
 	active = past >= lo - 1e-9 && past <= hi + 1e-9;
 	if (active && !a->limit_active)
 		a->limit_hits++;
-	a->limit_active = active;
-	if (a->limit_level_driven != !active) {
-		a->limit_level_driven = !active;
-		avr_raise_irq(s->limit_irq[a->index], (uint32_t)!active);
+	if (active != a->limit_active && s->bounce_count > 0) {
+		/* a real contact chatters: the pin settles after a few bounces */
+		a->limit_active = active;
+		a->bounce_left = 2 * s->bounce_count;
+		avr_cycle_timer_cancel(s->avr, bounce_timer, a);
+		limit_drive(s, a, !active);
+		avr_cycle_timer_register(s->avr, s->bounce_cycles, bounce_timer, a);
+		return;
 	}
+	a->limit_active = active;
+	if (!a->bounce_left)
+		limit_drive(s, a, !active);
 }
 
 void stage_sync_limits(struct stage *s)
 {
 	for (int i = 0; i < STAGE_AXES; i++) {
 		struct stage_axis *a = &s->axis[i];
-		int level = a->limit_enabled ? !a->limit_active : 1;
+		if (a->bounce_left && !avr_cycle_timer_status(s->avr, bounce_timer, a)) {
+			/* a reset dropped the bounce timer: the contact has settled */
+			a->bounce_left = 0;
+			a->limit_level_driven = !a->limit_active;
+		}
+		int level = a->limit_level_driven >= 0 ? a->limit_level_driven
+			    : (a->limit_enabled ? !a->limit_active : 1);
 		int bit = (s->avr->data[REG_PINB] >> (LIMIT_BIT0 + i)) & 1;
 		if (bit != level || a->limit_level_driven != level) {
 			a->limit_level_driven = level;

@@ -34,6 +34,7 @@ struct stage_axis {
 	int limit_dir;			/* +1: active above limit_deg, -1: below */
 	int limit_active;
 	int limit_level_driven;		/* pin level last driven, -1: never */
+	int bounce_left;		/* contact bounces still to come */
 	uint64_t limit_hits;		/* inactive -> active transitions */
 };
 
@@ -50,6 +51,8 @@ struct stage {
 	int step_invert_mask;		/* bit i: the step edge is the falling one */
 	double limit_width;		/* degrees past the switch position it stays pressed; 0: forever */
 	double limit_hyst;		/* degrees it must travel back to release */
+	int bounce_count;		/* extra open/close pairs after each switch transition */
+	uint32_t bounce_cycles;		/* between two bounces */
 	struct stage_vector vec[STAGE_VECTORS];
 	avr_irq_t *limit_irq[STAGE_AXES];
 };

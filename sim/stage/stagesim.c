@@ -48,6 +48,8 @@ struct options {
 	double limit[STAGE_AXES];
 	int limit_dir[STAGE_AXES];
 	double limit_width, limit_hyst;
+	int limit_bounce;
+	double limit_bounce_us;
 	int dir_invert, step_invert;
 	int realtime;
 	int verbose;
@@ -100,6 +102,8 @@ static void usage(FILE *f)
 "  --limit-dir D,D,D     side each switch closes on: + (angle >= position) or - (default +,+,+)\n"
 "  --limit-width DEG     switch stays pressed this far past its position, then releases (default 0: forever)\n"
 "  --limit-hyst DEG      travel back needed to release a pressed switch (default 0.05)\n"
+"  --limit-bounce N      contact bounces (open/close pairs) after each switch transition (default 0)\n"
+"  --limit-bounce-us US  time between two bounces (default 200)\n"
 "  --dir-invert MASK     bit i set: DIR high is the positive direction on axis i (default 0, as grbl)\n"
 "  --step-invert MASK    bit i set: the STEP pulse is active low on axis i (default 0)\n"
 "  --realtime            pace simulated time to wall time (default)\n"
@@ -170,7 +174,7 @@ static int parse_number(const char *opt, const char *arg, double *out, char *err
 static int parse_options(int argc, char **argv, struct options *o, char *err)
 {
 	enum { O_SOCKET = 256, O_EEPROM, O_LINK, O_SPD, O_START, O_LIMITS, O_LX, O_LY, O_LZ,
-	       O_LDIR, O_LWIDTH, O_LHYST, O_DIRINV, O_STEPINV, O_REALTIME, O_FAST, O_MCU, O_FREQ };
+	       O_LDIR, O_LWIDTH, O_LHYST, O_LBOUNCE, O_LBOUNCEUS, O_DIRINV, O_STEPINV, O_REALTIME, O_FAST, O_MCU, O_FREQ };
 	static const struct option longopts[] = {
 		{ "state-socket", required_argument, 0, O_SOCKET },
 		{ "eeprom", required_argument, 0, O_EEPROM },
@@ -184,6 +188,8 @@ static int parse_options(int argc, char **argv, struct options *o, char *err)
 		{ "limit-dir", required_argument, 0, O_LDIR },
 		{ "limit-width", required_argument, 0, O_LWIDTH },
 		{ "limit-hyst", required_argument, 0, O_LHYST },
+		{ "limit-bounce", required_argument, 0, O_LBOUNCE },
+		{ "limit-bounce-us", required_argument, 0, O_LBOUNCEUS },
 		{ "dir-invert", required_argument, 0, O_DIRINV },
 		{ "step-invert", required_argument, 0, O_STEPINV },
 		{ "realtime", no_argument, 0, O_REALTIME },
@@ -202,6 +208,7 @@ static int parse_options(int argc, char **argv, struct options *o, char *err)
 	o->freq = 16000000;
 	o->realtime = 1;
 	o->limit_hyst = 0.05;
+	o->limit_bounce_us = 200;
 	for (int i = 0; i < STAGE_AXES; i++) {
 		o->steps_per_deg[i] = 800.0;
 		o->limit_dir[i] = 1;
@@ -266,6 +273,23 @@ static int parse_options(int argc, char **argv, struct options *o, char *err)
 		case O_LHYST:
 			if (parse_number("--limit-hyst", optarg, &o->limit_hyst, err) < 0)
 				return -1;
+			break;
+		case O_LBOUNCE:
+			if (parse_number("--limit-bounce", optarg, &v, err) < 0)
+				return -1;
+			if (v < 0 || v > 100 || v != (int)v) {
+				snprintf(err, ERR_LEN, "--limit-bounce %s: a count 0..100", optarg);
+				return -1;
+			}
+			o->limit_bounce = (int)v;
+			break;
+		case O_LBOUNCEUS:
+			if (parse_number("--limit-bounce-us", optarg, &o->limit_bounce_us, err) < 0)
+				return -1;
+			if (o->limit_bounce_us < 1 || o->limit_bounce_us > 100000) {
+				snprintf(err, ERR_LEN, "--limit-bounce-us %s: 1..100000", optarg);
+				return -1;
+			}
 			break;
 		case O_DIRINV: case O_STEPINV: {
 			char *end;
@@ -393,6 +417,8 @@ static int sim_setup(struct sim *sim, FILE *out, char *err)
 	sim->stage.step_invert_mask = o->step_invert;
 	sim->stage.limit_width = o->limit_width;
 	sim->stage.limit_hyst = o->limit_hyst;
+	sim->stage.bounce_count = o->limit_bounce;
+	sim->stage.bounce_cycles = (uint32_t)(o->limit_bounce_us * 1e-6 * fw.frequency);
 	if (stage_attach(&sim->stage, sim->avr, err) < 0)
 		return -1;
 	if (o->eeprom) {

@@ -158,6 +158,43 @@ def test_homing(make_stage, firmware_elf):
         assert abs(st.state()[("x", "y", "z")[i]] - (sw - 0.5)) <= 3 / 800
 
 
+def test_homing_with_bouncing_switches(make_stage, firmware_elf):
+    """Each switch transition chatters 4 times, 0.5 ms apart: the firmware's
+    debounce must still home to the same place."""
+    switches = [1.0, 1.25, 1.5]
+    st = make_stage(elf=firmware_elf, args=["--limits", ",".join(map(str, switches)),
+                                            "--limit-bounce", "4", "--limit-bounce-us", "500"])
+    st.start()
+    st.ok("$22=1")
+    pulloff = settings(st)[27]
+    st.ok("$H", timeout=60)
+    st.wait_idle()
+    state = st.state()
+    for i, sw in enumerate(switches):
+        assert abs(state[("x", "y", "z")[i]] - (sw - pulloff)) <= 3 / 800, state
+
+
+def test_jog_and_jog_cancel(grbl):
+    grbl.ok("$J=G91 X1 Y-0.5 F1200")
+    grbl.wait_idle()
+    assert grbl.steps() == [800, -400, 0]
+    grbl.ok("$J=G91 X20 F1200")
+    grbl.run_cycles(SECOND // 4)
+    assert grbl.status()["state"] == "Jog"
+    grbl.write(b"\x85")                               # jog cancel
+    st = grbl.wait_idle(timeout=20)
+    stopped = grbl.steps()[0]
+    assert deg_steps(1) < stopped < deg_steps(21)
+    grbl.run_cycles(SECOND // 10)
+    assert grbl.steps()[0] == stopped
+    # the firmware knows where it stopped: its position is the pulses'
+    assert round(st["mpos"][0] * 800) == stopped
+    grbl.ok("G90 G0 X0 Y0")
+    grbl.wait_idle()
+    assert grbl.steps() == [0, 0, 0]
+    assert grbl.command("$J=G0 X1")[1].startswith("error:")   # G0 is not a jog
+
+
 def test_hard_limit_alarm_reset_and_unlock(make_stage, firmware_elf):
     st = make_stage(elf=firmware_elf, args=["--limits", "1,none,none"])
     st.start()

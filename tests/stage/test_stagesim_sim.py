@@ -5,6 +5,7 @@ import json
 import os
 import random
 import socket
+import time
 
 import pytest
 
@@ -12,7 +13,7 @@ import stagelib
 from stagelib import TESTFW
 
 READY = "testfw ready\r\n"
-COMMAND_BYTES = set(b"abcABCedlwrt")
+COMMAND_BYTES = set(b"abcABCedlwrtp")
 
 
 @pytest.fixture
@@ -102,6 +103,48 @@ def test_limit_switches(tfw):
     st.write(b"A" * 40 + b"l")         # back 0.05 deg past it: released
     st.expect_raw(rb"L110")
     assert st.state()["limits"] == [0, 0, 1]
+
+
+def test_limit_switch_bounce(tfw):
+    """--limit-bounce N: each transition chatters N times before it settles,
+    as a real contact does (pin-change interrupts counted by the program)."""
+    st = tfw(args=["--limits", "0.01,none,none", "--limit-bounce", "3", "--limit-bounce-us", "100"])
+    st.write(b"e" + b"a" * 8)
+    st.run_cycles(16_000_000 // 100)
+    st.write(b"lp")
+    st.expect_raw(rb"L011P007")          # closed, after 1 + 2 * 3 edges
+    st.write(b"A" * 50)
+    st.run_cycles(16_000_000 // 100)
+    st.write(b"lp")
+    st.expect_raw(rb"L111P014")          # open again, 7 more edges
+
+
+def test_realtime_pacing_never_runs_ahead(tfw):
+    st = tfw()
+    c0, t0 = st.cycle(), time.monotonic()
+    time.sleep(1.0)
+    c1, t1 = st.cycle(), time.monotonic()
+    assert c1 - c0 <= 16_000_000 * (t1 - t0) * 1.02 + 16_000_000 * 0.05
+
+
+def test_eeprom_saved_while_running(tfw, tmp_path):
+    """The EEPROM file follows the chip while running (atomic rename), so
+    even a killed simulator keeps the settings."""
+    ee = tmp_path / "live.eeprom"
+    st = tfw(eeprom=ee, name="live")
+    st.write(b"wZr")
+    st.expect_raw(rb"RZ")
+    t_end = time.monotonic() + 10
+    while not (ee.exists() and ee.read_bytes()[:1] == b"Z"):
+        assert time.monotonic() < t_end, "EEPROM file not updated while running"
+        time.sleep(0.1)
+    st.proc.kill()
+    st.proc.wait()
+    assert not (tmp_path / "live.eeprom.tmp").exists()
+    st.close(check=False)
+    st = tfw(eeprom=ee, name="again")
+    st.write(b"r")
+    st.expect_raw(rb"RZ")
 
 
 def test_eeprom_survives_restart(tfw, tmp_path):

@@ -10,6 +10,7 @@
  *   l       print "L" and the three limit inputs PB1..PB3 as 0/1 digits
  *   w<v>    store byte v at EEPROM address 0;  r  print "R" and that byte
  *   t<n>    burst of (n - '0') * 1000 X steps from Timer1 at 20 kHz
+ *   p       print "P" and the count of limit pin-change interrupts, 3 digits
  * Every other byte is echoed.
  */
 #include <avr/eeprom.h>
@@ -22,6 +23,12 @@
 static volatile uint8_t rx_buf[RX_SIZE];
 static volatile uint8_t rx_head, rx_tail;
 static volatile uint16_t burst_left;
+static volatile uint16_t pin_changes;
+
+ISR(PCINT0_vect)
+{
+	pin_changes++;
+}
 
 ISR(USART_RX_vect)
 {
@@ -103,6 +110,8 @@ int main(void)
 	OCR1A = 799;			/* 16 MHz / 800 = 20 kHz */
 	TCCR1B = _BV(WGM12) | _BV(CS10);
 	TIMSK1 = _BV(OCIE1A);
+	PCMSK0 = _BV(PCINT1) | _BV(PCINT2) | _BV(PCINT3);
+	PCICR = _BV(PCIE0);
 	sei();
 
 	uart_puts("testfw ready\r\n");
@@ -134,6 +143,17 @@ int main(void)
 			uart_put('R');
 			uart_put(eeprom_read_byte((const uint8_t *)0));
 			break;
+		case 'p': {
+			uint16_t n;
+			cli();
+			n = pin_changes;
+			sei();
+			uart_put('P');
+			uart_put((uint8_t)('0' + n / 100 % 10));
+			uart_put((uint8_t)('0' + n / 10 % 10));
+			uart_put((uint8_t)('0' + n % 10));
+			break;
+		}
 		case 't': {
 			uint16_t n = (uint16_t)(uart_wait() - '0') * 1000u;
 			cli();
