@@ -36,6 +36,7 @@ stage: deps
 
 host: deps
 	$(MAKE) -C host
+	$(MAKE) -C host/rig
 
 build: firmware stage host
 
@@ -56,4 +57,5 @@ clean:
 	-$(MAKE) -C firmware clean
 	-$(MAKE) -C sim/stage clean
 	-$(MAKE) -C host clean
+	-$(MAKE) -C host/rig clean
 	rm -rf $(BUILD)
