@@ -80,7 +80,7 @@ def _spacings(ink, wrap):
 def stripe_spacing(ink):
     """eta check from the ink mask [H, W] (True where not blank)."""
     h, w = ink.shape
-    noise = max(1, w // 1024)
+    noise = max(2, w // 1024)    # shorter runs are antialiasing or JPEG specks
     best = (np.inf, None)
     rows = np.unique(np.linspace(0, h - 1, min(h, SCAN_ROWS)).round().astype(int))
     cols = np.unique(np.linspace(0, w - 1, min(w, SCAN_COLS)).round().astype(int))

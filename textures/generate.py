@@ -73,9 +73,9 @@ COLUMNS_2 = (
     (121, 3, 7, BLACK),
 )
 COLUMNS_3 = COLUMNS_2 + (
-    (-125, 4, 7, BLACK),
+    (-125, 4, 7, BLUE),
     (-68, 0, 2, BLUE),
-    (-12, 4, 7, GREEN),
+    (-12, 4, 7, BLUE),
     (40, 0, 3, BLACK),
     (95, 5, 7, BLUE),
     (150, 0, 4, GREEN),
@@ -84,14 +84,14 @@ COLUMNS_3 = COLUMNS_2 + (
 # stripes, each (row index, longitude start, longitude end, slot).
 SHORT_ROWS_3 = (2, 5)
 SHORT_3 = (
-    (2, -152, -122, GREEN), (2, -68, -40, BLACK), (2, 14, 40, GREEN), (2, 95, 121, BLACK),
+    (2, -152, -122, BLUE), (2, -68, -40, BLACK), (2, 14, 40, BLUE), (2, 95, 121, GREEN),
     (2, 150, 175, BLUE),
-    (5, -125, -97, GREEN), (5, -38, -12, BLUE), (5, 40, 68, BLUE), (5, 121, 150, GREEN),
+    (5, -125, -97, BLUE), (5, -38, -12, GREEN), (5, 40, 68, BLUE), (5, 121, 150, BLUE),
     (5, -180, -160, BLACK),
 )
 
-STRIPE_WIDTH = {1: 13.5, 2: 11.0, 3: 11.0}   # degrees of latitude
-COLUMN_WIDTH = {2: 10.0, 3: 9.0}             # degrees of longitude
+STRIPE_WIDTH = {1: 13.5, 2: 12.5, 3: 13.0}   # degrees of latitude
+COLUMN_WIDTH = {2: 10.0, 3: 12.0}             # degrees of longitude
 
 
 def _hstripe_rects(lat, width, gaps, slot):
