@@ -8,8 +8,13 @@
 #include "poseinfer.h"
 #include "shim.h"
 
-/* Monotonic clock in milliseconds. */
+/* Monotonic clock in milliseconds (or process CPU time, see below). */
 double pi_now_ms(void);
+
+/* Make pi_now_ms (and so every timing in pi_result) measure process CPU
+ * time instead of wall time: for benchmarks on a machine shared with other
+ * work, where wall time mostly measures the neighbours. */
+void pi_use_cpu_clock(int on);
 
 /* snprintf into err (PI_ERR_LEN bytes); NULL err is fine. */
 void pi_seterr(char *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
@@ -26,5 +31,9 @@ int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err);
 
 /* Decode an encoded image into m, timing it into f->decode_ms. */
 int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f, char *err);
+
+/* Run the model once on the tensor already in the context's input buffer
+ * (the last preprocessed frame, or zeros): bare OrtRun, for the benchmark. */
+int pi_run_only(pi_ctx *ctx, char *err);
 
 #endif

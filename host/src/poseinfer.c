@@ -44,10 +44,17 @@ struct pi_ctx {
     size_t filecap;
 };
 
+static clockid_t pi_clock = CLOCK_MONOTONIC;
+
+void pi_use_cpu_clock(int on)
+{
+    pi_clock = on ? CLOCK_PROCESS_CPUTIME_ID : CLOCK_MONOTONIC;
+}
+
 double pi_now_ms(void)
 {
     struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
+    clock_gettime(pi_clock, &ts);
     return ts.tv_sec * 1e3 + ts.tv_nsec / 1e6;
 }
 
@@ -494,6 +501,11 @@ int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n
     res->r = c.r;
     res->preprocess_ms = pi_now_ms() - t0;
     return 0;
+}
+
+int pi_run_only(pi_ctx *ctx, char *err)
+{
+    return run_model(ctx, err);
 }
 
 int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err)

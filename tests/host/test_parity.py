@@ -37,6 +37,16 @@ def parity_frames(tmp_path_factory):
         p = d / name
         cv2.imwrite(str(p), sphere_frame(**kw))
         paths.append(p)
+    # several blobs and speckles: the largest contour must win on both sides
+    img = sphere_frame(seed=30, cx=400, cy=300, r=110)
+    cv2.circle(img, (90, 90), 45, (20, 200, 240), -1)
+    rng = np.random.default_rng(31)
+    for _ in range(40):
+        x, y = int(rng.integers(0, 640)), int(rng.integers(0, 512))
+        img[y:y + 2, x:x + 3] = 255
+    p = d / "blobs.png"
+    cv2.imwrite(str(p), img)
+    paths.append(p)
     sim = ROOT / ".venv" / "bin" / "sim"
     if sim.exists():
         tex = d / "tex.png"
