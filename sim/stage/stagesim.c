@@ -543,6 +543,8 @@ int main(int argc, char **argv)
 	sim.srv.fd = -1;
 	if (sim_setup(&sim, out, err) < 0) {
 		fprintf(stderr, "stagesim: %s\n", err);
+		if (sim.avr)
+			avr_terminate(sim.avr);
 		return 1;
 	}
 	if (sim_run(&sim, err) < 0)
@@ -556,6 +558,7 @@ int main(int argc, char **argv)
 	}
 	srv_close(&sim.srv);
 	bridge_close(&sim.bridge);
+	avr_terminate(sim.avr);
 	fclose(out);
 	return rc;
 }

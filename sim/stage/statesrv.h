@@ -10,7 +10,7 @@
 #define ERR_LEN 256
 #define SRV_CLIENTS 16
 #define SRV_LINE 256
-#define SRV_OUT 4096
+#define SRV_OUT 8192
 
 /* Answer one request line (no newline) into out; returns the length. */
 typedef size_t (*srv_handler)(void *ctx, const char *request, char *out, size_t len);
