@@ -24,6 +24,36 @@
 #define ENABLE_BIT 0	/* PB0 */
 #define LIMIT_BIT0 1	/* PB1 */
 
+/* atmega328p timer registers (data space) for the CTC-compare-0 check */
+static const struct {
+	uint8_t tccra, tccrb, ocra_lo, ocra_hi, timsk;	/* ocra_hi 0: 8-bit timer */
+} timers[3] = {
+	{ 0x44, 0x45, 0x47, 0x00, 0x6e },	/* timer0 */
+	{ 0x80, 0x81, 0x88, 0x89, 0x6f },	/* timer1 */
+	{ 0xb0, 0xb1, 0xb3, 0x00, 0x70 },	/* timer2 */
+};
+
+void stage_check_timer_traps(struct stage *s)
+{
+	const uint8_t *d = s->avr->data;
+
+	for (int t = 0; t < 3; t++) {
+		uint8_t a = d[timers[t].tccra], b = d[timers[t].tccrb];
+		int running = (b & 7) != 0;
+		/* CTC on OCRnA: WGM = 2 (timers 0/2) or 4 (timer1) */
+		int wgm = t == 1 ? (a & 3) | ((b >> 1) & 0x0c) : (a & 3) | ((b >> 1) & 4);
+		int ctc = wgm == (t == 1 ? 4 : 2);
+		unsigned ocr = d[timers[t].ocra_lo] | (timers[t].ocra_hi ? d[timers[t].ocra_hi] << 8 : 0);
+		int irq = d[timers[t].timsk] & 2;	/* OCIEnA */
+		if (running && ctc && irq && ocr == 0 && !(s->trap_warned & (1 << t))) {
+			s->trap_warned |= 1 << t;
+			fprintf(stderr, "stagesim: warning: timer%d in CTC mode with OCR%dA = 0 at cycle %llu: "
+				"simavr 1.6 never fires this compare (silicon does)\n",
+				t, t, (unsigned long long)s->avr->cycle);
+		}
+	}
+}
+
 int stage_enabled(const struct stage *s)
 {
 	const uint8_t *d = s->avr->data;

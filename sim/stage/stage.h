@@ -55,6 +55,7 @@ struct stage {
 	uint32_t bounce_cycles;		/* between two bounces */
 	struct stage_vector vec[STAGE_VECTORS];
 	avr_irq_t *limit_irq[STAGE_AXES];
+	int trap_warned;		/* bit i: warned about timer i */
 };
 
 /* Hook the STEP/DIR/limit pins and the interrupt vectors of a freshly
@@ -64,6 +65,11 @@ int stage_attach(struct stage *s, avr_t *avr, char *err);
 /* Drive the limit inputs again where the pin register disagrees with the
  * switch state (after a reset cleared it). Main loop, between avr_run calls. */
 void stage_sync_limits(struct stage *s);
+
+/* Warn once on stderr when the firmware sets up a timer in CTC mode with a
+ * compare value of 0 and its interrupt enabled: simavr 1.6 never fires such a
+ * compare (silicon does, every tick). Main loop, cheap. */
+void stage_check_timer_traps(struct stage *s);
 
 /* 1 if the drivers are enabled now (PB0 an output driven low). */
 int stage_enabled(const struct stage *s);

@@ -461,6 +461,7 @@ static int sim_run(struct sim *sim, char *err)
 		}
 		bridge_sync_baud(&sim->bridge);
 		bridge_feed(&sim->bridge);
+		stage_check_timer_traps(&sim->stage);
 
 		/* pacing: sleep in poll(2) while simulated time is ahead of wall time */
 		int timeout = 0;

@@ -13,7 +13,7 @@ import stagelib
 from stagelib import TESTFW
 
 READY = "testfw ready\r\n"
-COMMAND_BYTES = set(b"abcABCedlwrtp")
+COMMAND_BYTES = set(b"abcABCedlwrtpz")
 
 
 @pytest.fixture
@@ -87,6 +87,14 @@ def test_timer_burst_and_isr_timing(tfw):
     assert 790 <= ax["min_period"] <= 800
     vec = stats["vectors"]["11"]                        # TIMER1_COMPA
     assert 40 < vec["max_cycles"] < 200
+
+
+def test_warns_about_the_ctc_zero_trap(tfw):
+    st = tfw()
+    st.write(b"z")
+    st.expect_raw(rb"Z")
+    st.close()
+    assert "timer1 in CTC mode with OCR1A = 0" in (st.tmp / "stage0.stderr").read_text()
 
 
 def test_limit_switches(tfw):

@@ -10,6 +10,7 @@
  *   l       print "L" and the three limit inputs PB1..PB3 as 0/1 digits
  *   w<v>    store byte v at EEPROM address 0;  r  print "R" and that byte
  *   t<n>    burst of (n - '0') * 1000 X steps from Timer1 at 20 kHz
+ *   z       OCR1A = 0 for 2 ms (the simavr CTC trap; stagesim must warn)
  *   p       print "P" and the count of limit pin-change interrupts, 3 digits
  * Every other byte is echoed.
  */
@@ -154,6 +155,12 @@ int main(void)
 			uart_put((uint8_t)('0' + n % 10));
 			break;
 		}
+		case 'z':
+			OCR1A = 0;
+			__builtin_avr_delay_cycles(32000);
+			OCR1A = 799;
+			uart_put('Z');
+			break;
 		case 't': {
 			uint16_t n = (uint16_t)(uart_wait() - '0') * 1000u;
 			cli();
