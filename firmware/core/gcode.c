@@ -61,7 +61,7 @@ void gc_init(void)
   memset(&gc_state, 0, sizeof(gc_state));
   gc_state.modal.motion = MOTION_MODE_SEEK;
   if (!settings_read_coord_data(gc_state.modal.coord_select, gc_state.coord_system))
-    report_status_message(STATUS_SETTING_READ_FAIL);
+    report_feedback_message(MESSAGE_COORD_CRC);
 }
 
 void gc_sync_position(void)
@@ -361,7 +361,7 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
       gc_state.modal.motion = MOTION_MODE_LINEAR;
       gc_state.modal.distance = 0;
       gc_state.modal.coord_select = 0;
-      if (!settings_read_coord_data(0, gc_state.coord_system)) report_status_message(STATUS_SETTING_READ_FAIL);
+      if (!settings_read_coord_data(0, gc_state.coord_system)) report_feedback_message(MESSAGE_COORD_CRC);
       if (sys.state != STATE_CHECK_MODE) report_feedback_message(MESSAGE_PROGRAM_END);
     }
     gc_state.modal.program_flow = PROGRAM_FLOW_RUNNING;

@@ -12,7 +12,10 @@
 
 void mc_line(const float *target, plan_line_data_t *pl_data)
 {
-  if (sys.state != STATE_JOG && bit_istrue(settings.flags, BITFLAG_SOFT_LIMIT_ENABLE)) limits_soft_check(target);
+  if (sys.state != STATE_JOG && bit_istrue(settings.flags, BITFLAG_SOFT_LIMIT_ENABLE)) {
+    limits_soft_check(target);
+    if (sys.abort || sys.state == STATE_ALARM) return;
+  }
   if (sys.state == STATE_CHECK_MODE) return;
   uint8_t need = plan_backlash_blocks_needed(target);
   for (;;) {

@@ -98,6 +98,7 @@ void report_feedback_message(uint8_t message)
     case MESSAGE_PROGRAM_END: printPgmString(PSTR("Pgm End")); break;
     case MESSAGE_RESTORE_DEFAULTS: printPgmString(PSTR("Restoring defaults")); break;
     case MESSAGE_SETTINGS_CRC: printPgmString(PSTR("EEPROM settings failed CRC check, defaults restored")); break;
+    case MESSAGE_COORD_CRC: printPgmString(PSTR("Coordinate data failed CRC check, cleared")); break;
     case MESSAGE_FAULT_WATCHDOG: printPgmString(PSTR("Fault: watchdog reset, drivers disabled")); break;
     case MESSAGE_FAULT_INTERNAL: printPgmString(PSTR("Fault: internal error, drivers disabled")); break;
   }
@@ -167,14 +168,11 @@ static void report_coord(const char *pname, const float *v)
   printPgmString(PSTR("]\r\n"));
 }
 
-void report_ngc_parameters(void)
+uint8_t report_ngc_parameters(void)
 {
   float coord[N_AXIS];
   for (uint8_t i = 0; i < SETTING_INDEX_NCOORD; i++) {
-    if (!settings_read_coord_data(i, coord)) {
-      report_status_message(STATUS_SETTING_READ_FAIL);
-      return;
-    }
+    if (!settings_read_coord_data(i, coord)) return STATUS_SETTING_READ_FAIL;
     serial_write('[');
     if (i < N_COORDINATE_SYSTEM) {
       serial_write('G');
@@ -188,6 +186,7 @@ void report_ngc_parameters(void)
   }
   report_coord(PSTR("G92"), gc_state.coord_offset);
   printPgmString(PSTR("[TLO:0.000]\r\n[PRB:0.000,0.000,0.000:0]\r\n"));
+  return STATUS_OK;
 }
 
 void report_gcode_modes(void)

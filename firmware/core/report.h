@@ -14,6 +14,7 @@
 #define MESSAGE_RESTORE_DEFAULTS 9
 #define MESSAGE_SETTINGS_CRC 10
 #define MESSAGE_FAULT_WATCHDOG 11
+#define MESSAGE_COORD_CRC 13
 #define MESSAGE_FAULT_INTERNAL 12
 
 void printString(const char *s);          // main loop: RAM string
@@ -26,7 +27,7 @@ void report_feedback_message(uint8_t message);   // main loop: "[MSG:...]"
 void report_init_message(void);                  // main loop: the banner after (re)start
 void report_grbl_help(void);                     // main loop: "[HLP:...]"
 void report_grbl_settings(void);                 // main loop: "$N=value" lines
-void report_ngc_parameters(void);                // main loop: "$#" lines
+uint8_t report_ngc_parameters(void);             // main loop: "$#" lines; status code
 void report_gcode_modes(void);                   // main loop: "[GC:...]"
 void report_build_info(const char *info);        // main loop: "$I" lines
 void report_echo_line_received(const char *line); // main loop: not used (GRBL debug option)

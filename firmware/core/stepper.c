@@ -46,7 +46,9 @@ static segment_t segment_buffer[SEGMENT_BUFFER_SIZE];
 static struct {
   uint32_t counter[N_AXIS];
   uint8_t step_outbits;     // pins for the next tick (inverted)
-  uint8_t step_bits;        // axes stepping on the next tick (not inverted)
+  uint8_t pending_bits;     // steps counted in sys_position, not yet sent to the pins
+  uint8_t pending_neg;      // their directions
+  uint8_t pending_count;    // 1 if they were counted (not backlash)
   uint16_t step_count;
   uint8_t exec_block_index;
   st_block_t *exec_block;
@@ -100,7 +102,7 @@ void st_wake_up(void)
   idle_pending = 0;
   board_stepper_enable(1);
   st.step_outbits = step_port_invert_mask;
-  st.step_bits = 0;
+  st.pending_bits = 0;
   if (!running) {
     running = 1;
     // First tick after ~100 us; the ISR loads the real period from the segment.
@@ -112,6 +114,15 @@ void st_wake_up(void)
 void st_go_idle(void)
 {
   board_step_timer_stop();
+  // A step counted for the next tick never reaches the pins: uncount it, so
+  // the position stays exact after a reset or an alarm mid-move.
+  if (st.pending_count) {
+    for (uint8_t i = 0; i < N_AXIS; i++) {
+      if (st.pending_bits & bit(i)) sys_position[i] += (st.pending_neg & bit(i)) ? 1 : -1;
+    }
+  }
+  st.pending_bits = 0;
+  st.step_outbits = step_port_invert_mask;
   running = 0;
   busy = 0;
   // Drivers go off after $1 ms unless $1=255 (held), or at once on an alarm.
@@ -138,6 +149,7 @@ void st_isr(void)
 {
   if (busy) return;   // the previous tick is still running: keep its pulse
   board_step_write(st.step_outbits);
+  st.pending_bits = 0;
   busy = 1;
   board_irq_enable(); // let the pulse-end compare and the UART in
 
@@ -181,6 +193,9 @@ void st_isr(void)
     }
   }
   if (sys.state == STATE_HOMING) bits &= sys.homing_axis_lock;
+  st.pending_bits = bits;
+  st.pending_neg = b->dir_sign_bits;
+  st.pending_count = b->count_position;
   st.step_outbits = bits ^ step_port_invert_mask;
 
   if (--st.step_count == 0) {

@@ -135,8 +135,7 @@ uint8_t system_execute_line(char *line)
       switch (line[1]) {
         case '#':
           if (line[2] != 0) return STATUS_INVALID_STATEMENT;
-          report_ngc_parameters();
-          break;
+          return report_ngc_parameters();
         case 'H': {
           if (bit_isfalse(settings.flags, BITFLAG_HOMING_ENABLE)) return STATUS_SETTING_DISABLED;
           uint8_t mask = HOMING_CYCLE_MASK;
@@ -156,10 +155,7 @@ uint8_t system_execute_line(char *line)
         case 'I':
           if (line[2] == 0) {
             char info[LINE_BUFFER_SIZE];
-            if (!settings_read_build_info(info)) {
-              report_status_message(STATUS_SETTING_READ_FAIL);
-              info[0] = 0;
-            }
+            settings_read_build_info(info);   // a bad record reads as empty
             report_build_info(info);
           } else if (line[2] == '=') {
             if (strlen(line + 3) > 40) return STATUS_LINE_LENGTH_EXCEEDED;

@@ -27,10 +27,12 @@ static void h_collect(void)
 // Power-on: fresh board state, EEPROM kept (erase it first for a new chip).
 static void h_boot(void)
 {
+  memset((void *)sys_position, 0, sizeof(sys_position));   // RAM is cleared at power-on
   board_init();
   serial_init();
   settings_init();
   protocol_init();
+  host_watchdog_reset = 0;
   protocol_reset();
   h_collect();
 }

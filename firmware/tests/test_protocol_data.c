@@ -10,7 +10,7 @@
 //   = run MS      let MS milliseconds pass
 //   = boot        power-cycle, EEPROM kept;  = erase  blank EEPROM
 //   = steps X Y Z the motors moved exactly this many steps since power-on
-//   = corrupt ADDR  flip a bit in EEPROM
+//   = corrupt ADDR  flip a bit in EEPROM;  = watchdog  the next boot follows a watchdog reset
 //   = limit AXIS STEPS  the axis' switch closes at motor step STEPS and beyond
 //   # comment
 // Every reply line must be matched before the next '>' line.
@@ -102,7 +102,7 @@ static void run_file(const char *path)
       char *e; unsigned long ms = strtoul(line + 3, &e, 10);
       host_schedule_byte(board_millis() + ms, (uint8_t)strtol(e, NULL, 16));
     }
-    else if (!strncmp(line, "> ", 2)) { check_all_matched(); h_send(line + 2); }
+    else if (!strncmp(line, "> ", 2) || !strcmp(line, ">")) { check_all_matched(); h_send(line[1] ? line + 2 : ""); }
     else if (!strncmp(line, "<~ ", 3)) {
       const char *l = next_line();
       if (!l || strncmp(l, line + 3, strlen(line + 3))) fail(line, l);
@@ -117,6 +117,7 @@ static void run_file(const char *path)
     } else if (!strncmp(line, "= run ", 6)) { host_advance_ms(atoi(line + 6)); h_run(600000); }
     else if (!strcmp(line, "= boot")) { check_all_matched(); h_boot(); }
     else if (!strcmp(line, "= erase")) h_erase_eeprom();
+    else if (!strcmp(line, "= watchdog")) host_watchdog_reset = 1;
     else if (!strncmp(line, "= corrupt ", 10)) host_eeprom[atoi(line + 10)] ^= 0x10;
     else if (!strncmp(line, "= limit ", 8)) {
       int ax; long st;
@@ -134,6 +135,7 @@ static void run_file(const char *path)
     }
   }
   check_all_matched();
+  host_watchdog_reset = 0;
   fclose(f);
 }
 
