@@ -253,3 +253,25 @@ def test_rendered_frames(run, models, tmp_path):
             for k, true in zip("xyz", pose):
                 d = (l[k] - true + 180) % 360 - 180
                 assert abs(d) < 5, (l, pose)
+
+
+def test_install_runs_from_its_prefix(models, frames, tmp_path):
+    """`make install DESTDIR=...`: the installed binary finds the ONNX Runtime
+    copy through its rpath ($ORIGIN/../lib/poseinfer)."""
+    if os.environ.get("POSEINFER") and Path(os.environ["POSEINFER"]).parent.name != "build":
+        pytest.skip("install is tested with the plain build")
+    dest = tmp_path / "dest"
+    proc = subprocess.run(["make", "-s", "-C", str(ROOT / "host"), "install", f"DESTDIR={dest}", "PREFIX=/usr"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    exe = dest / "usr" / "bin" / "poseinfer"
+    unit = (dest / "usr" / "lib" / "systemd" / "system" / "poseinfer.service").read_text()
+    assert "ExecStart=/usr/bin/poseinfer --config /etc/poseinfer.conf" in unit
+    assert (dest / "usr" / "include" / "poseinfer.h").exists()
+    out = subprocess.run([str(exe), "--model", str(models["good"]), str(frames["good.png"])],
+                         capture_output=True, text=True, timeout=60,
+                         env={"PATH": "/usr/bin:/bin", "LD_LIBRARY_PATH": ""})
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["file"] == str(frames["good.png"])
+    ldd = subprocess.run(["ldd", str(exe)], capture_output=True, text=True).stdout
+    assert str(dest / "usr" / "bin" / ".." / "lib" / "poseinfer") in ldd, ldd

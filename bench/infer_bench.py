@@ -1,0 +1,287 @@
+"""Per-frame cost of the host runtime, one run, as ratios (docs/bench/host.md).
+
+    .venv/bin/python bench/infer_bench.py [--rounds 25] [--frames 12] [--threads 1]
+
+Measures, on the same frames (PNG files, 640 x 512, rendered by `sim render`
+when it is there, else drawn), interleaved so that a busy neighbour hits all
+alike:
+  - bare OrtRun on a ready tensor (libposeinfer's own session);
+  - reading + decoding the file (OpenCV, as libposeinfer does);
+  - the full poseinfer path (pi_infer_file: read, decode, preprocess, infer),
+    split into decode / preprocess / infer;
+  - the same pipeline in Python: cv2.imread + training/preprocess.py +
+    onnxruntime, same thread count, spinning off;
+  - the `poseinfer` program itself (wall ms it prints per image);
+  - the CPU an idle `poseinfer --serve` daemon uses.
+Times are process CPU time (robust on a machine shared with other jobs) and
+wall time; p50 and p99 in ms. Needs host/build/poseinfer and
+host/build/infer_bench (`make -C host bench` builds both, then runs this).
+
+Model: training/models/Texture_3_color.onnx when present, else an untrained
+MobileNetV2 exported by training/export.py (same graph, same cost).
+"""
+import argparse
+import datetime
+import json
+import os
+import platform
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import cv2  # noqa: E402
+import onnxruntime as ort  # noqa: E402
+
+from training import preprocess  # noqa: E402
+
+HOST = ROOT / "host" / "build"
+REAL_MODEL = ROOT / "training" / "models" / "Texture_3_color.onnx"
+
+
+def get_args_parser():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--rounds", type=int, default=25, help="passes over the frames (default 25)")
+    ap.add_argument("--frames", type=int, default=12, help="distinct frames (default 12)")
+    ap.add_argument("--threads", type=int, default=1, help="ONNX Runtime intra-op threads, both sides (default 1)")
+    ap.add_argument("--model", default=None, help="ONNX model (default: the trained one, else untrained MobileNetV2)")
+    ap.add_argument("--idle-seconds", type=float, default=10.0, help="idle daemon measurement (default 10)")
+    ap.add_argument("--work", default=str(ROOT / "build" / "bench" / "host"), help="scratch folder")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "bench" / "host.md"), help="report (default docs/bench/host.md)")
+    return ap
+
+
+def pick_model(args, work):
+    if args.model:
+        return Path(args.model), "given"
+    if REAL_MODEL.exists():
+        return REAL_MODEL, "trained Texture_3_color"
+    path = work / "mobilenet_v2_untrained.onnx"
+    if not path.exists():
+        import torch
+        from training import export, models
+        torch.manual_seed(0)
+        cfg = {"arch": "mobilenet_v2", "head": "euler", "preprocess": dict(preprocess.DEFAULTS)}
+        export.export_onnx(models.build(cfg), cfg, path)
+    return path, "untrained mobilenet_v2 (same graph as the trained one)"
+
+
+def make_frames(n, work):
+    """n frames of the reference camera; rendered when the renderer is there."""
+    d = work / "frames"
+    d.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    poses = rng.uniform(-30, 30, (n, 3)).round(1)
+    sim = ROOT / ".venv" / "bin" / "sim"
+    texture = ROOT / "build" / "textures" / "Texture_3_color.png"
+    if not texture.exists():
+        texture = d / "texture.png"
+        t = np.full((512, 1024, 3), 230, np.uint8)
+        for _ in range(150):
+            cv2.circle(t, (int(rng.integers(0, 1024)), int(rng.integers(0, 512))), int(rng.integers(8, 50)),
+                       tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
+        cv2.imwrite(str(texture), t)
+    paths, how = [], "rendered (sim render)"
+    for x, y, z in poses:
+        p = d / f"{x}_{y}_{z}.png"
+        if not p.exists() and sim.exists():
+            subprocess.run([str(sim), "render", "--texture", str(texture), "--pose", str(x), str(y), str(z),
+                            "--out", str(p)], check=False, capture_output=True, timeout=300)
+        if not p.exists():
+            how = "drawn (cv2)"
+            img = np.full((512, 640, 3), (64, 64, 70), np.uint8)
+            cx, cy = 320 + int(rng.integers(-40, 40)), 256 + int(rng.integers(-40, 40))
+            cv2.circle(img, (cx, cy), 133, (200, 120, 40), -1, lineType=cv2.LINE_AA)
+            for _ in range(20):
+                cv2.circle(img, (cx + int(rng.integers(-90, 90)), cy + int(rng.integers(-90, 90))), 15,
+                           tuple(int(v) for v in rng.integers(0, 255, 3)), -1, lineType=cv2.LINE_AA)
+            cv2.imwrite(str(p), img)
+        paths.append(p)
+    return paths, how
+
+
+def pct(v, q):
+    return float(np.percentile(np.asarray(v, float), q))
+
+
+def c_side(model, frames, rounds, threads, clock):
+    out = subprocess.run([str(HOST / "infer_bench"), str(model), str(rounds), str(threads), clock]
+                         + [str(p) for p in frames], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout)
+
+
+def python_side(model, frames, rounds, threads):
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    sess = ort.InferenceSession(str(model), so, providers=["CPUExecutionProvider"])
+    meta = sess.get_modelmeta().custom_metadata_map
+    p = preprocess.params(meta.get("spherepose.preprocess"))
+    x = np.zeros((1, 3, p["size"], p["size"]), np.float32)
+    sess.run(["euler_deg"], {"image": x})  # warm-up, as the C side
+    res = {k: [] for k in ("decode", "preprocess", "infer", "total")}
+    wall = {k: [] for k in res}
+    for _ in range(rounds):
+        for f in frames:
+            c0, w0 = time.process_time(), time.perf_counter()
+            img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+            c1, w1 = time.process_time(), time.perf_counter()
+            t = preprocess.preprocess(img, p)
+            c2, w2 = time.process_time(), time.perf_counter()
+            sess.run(["euler_deg"], {"image": t[None]})
+            c3, w3 = time.process_time(), time.perf_counter()
+            for d, a, b, c, e in ((res, c0, c1, c2, c3), (wall, w0, w1, w2, w3)):
+                d["decode"].append((b - a) * 1e3)
+                d["preprocess"].append((c - b) * 1e3)
+                d["infer"].append((e - c) * 1e3)
+                d["total"].append((e - a) * 1e3)
+    return res, wall
+
+
+def cli_side(model, frames, rounds, threads):
+    args = [str(HOST / "poseinfer"), "--model", str(model), "--threads", str(threads), "--timings"]
+    out = subprocess.run(args + [str(f) for f in frames] * rounds, capture_output=True, text=True)
+    lines = [json.loads(l) for l in out.stdout.splitlines()]
+    bad = [l for l in lines if "error" in l]
+    if bad:
+        raise SystemExit(f"poseinfer failed on {bad[0]}")
+    return [l["ms"] for l in lines]
+
+
+def idle_cpu(model, seconds, work):
+    sock = Path(tempfile.mkdtemp()) / "pi.sock"
+    p = subprocess.Popen([str(HOST / "poseinfer"), "--model", str(model), "--serve", f"unix:{sock}"],
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        while "listening" not in p.stderr.readline():
+            if p.poll() is not None:
+                raise SystemExit("poseinfer --serve did not start")
+        s = socket.socket(socket.AF_UNIX)
+        s.connect(str(sock))
+        s.sendall(b"ping\n")
+        s.recv(100)
+
+        def cpu():
+            f = open(f"/proc/{p.pid}/stat").read().rsplit(")", 1)[1].split()
+            return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+
+        time.sleep(1.0)
+        c0, t0 = cpu(), time.time()
+        time.sleep(seconds)
+        return 100.0 * (cpu() - c0) / (time.time() - t0)
+    finally:
+        p.terminate()
+        p.wait(timeout=30)
+
+
+def machine():
+    model = platform.processor() or "?"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} logical CPUs, load average {os.getloadavg()[0]:.1f} at start"
+
+
+def main(args):
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    for exe in ("poseinfer", "infer_bench"):
+        if not (HOST / exe).exists():
+            raise SystemExit(f"{HOST / exe} missing: run `make -C host bench`")
+    mach = machine()
+    model, model_how = pick_model(args, work)
+    frames, frames_how = make_frames(args.frames, work)
+    n = args.rounds * len(frames)
+    print(f"infer_bench: {n} frames per pipeline, model {model.name} ({model_how}), frames {frames_how}")
+
+    c_cpu = c_side(model, frames, args.rounds, args.threads, "cpu")
+    c_wall = c_side(model, frames, args.rounds, args.threads, "wall")
+    py_cpu, py_wall = python_side(model, frames, args.rounds, args.threads)
+    cli_wall = cli_side(model, frames, args.rounds, args.threads)
+    idle = idle_cpu(model, args.idle_seconds, work)
+
+    rows = []
+
+    def row(name, cpu, wall):
+        rows.append((name, pct(cpu, 50), pct(cpu, 99), pct(wall, 50) if wall else None,
+                     pct(wall, 99) if wall else None))
+
+    row("bare OrtRun (ready tensor)", c_cpu["ortrun"], c_wall["ortrun"])
+    row("decode (read + imdecode)", c_cpu["decode"], c_wall["decode"])
+    row("poseinfer: decode", c_cpu["full_decode"], c_wall["full_decode"])
+    row("poseinfer: preprocess", c_cpu["full_preprocess"], c_wall["full_preprocess"])
+    row("poseinfer: infer", c_cpu["full_infer"], c_wall["full_infer"])
+    row("**poseinfer: total**", c_cpu["full"], c_wall["full"])
+    row("Python: decode (cv2.imread)", py_cpu["decode"], py_wall["decode"])
+    row("Python: preprocess (training/preprocess.py)", py_cpu["preprocess"], py_wall["preprocess"])
+    row("Python: infer (onnxruntime)", py_cpu["infer"], py_wall["infer"])
+    row("**Python: total**", py_cpu["total"], py_wall["total"])
+    rows.append(("poseinfer program, ms it prints", None, None, pct(cli_wall, 50), pct(cli_wall, 99)))
+
+    def ratios(d, py):
+        base = pct(d["ortrun"], 50) + pct(d["decode"], 50)
+        return (pct(d["full"], 50) / base,
+                pct(d["full"], 50) / (base + pct(d["full_preprocess"], 50)),
+                pct(py["total"], 50) / pct(d["full"], 50))
+
+    r_cpu, r_wall = ratios(c_cpu, py_cpu), ratios(c_wall, py_wall)
+
+    def f(v):
+        return "" if v is None else f"{v:.2f}"
+
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    md = [
+        "# Host runtime benchmark (libposeinfer / poseinfer)",
+        "",
+        f"- Command: `make -C host bench` (= `.venv/bin/python bench/infer_bench.py --rounds {args.rounds} "
+        f"--frames {args.frames} --threads {args.threads}`)",
+        f"- Date: {now}",
+        f"- Machine: {mach}",
+        f"- Model: `{model.name}` ({model_how}); input {preprocess.DEFAULTS['size']} px; "
+        f"{args.threads} intra-op thread(s) on both sides, spinning off",
+        f"- Frames: {len(frames)} PNG files, 640 x 512, {frames_how}; {n} frames per pipeline, interleaved",
+        f"- Versions: ONNX Runtime {ort.__version__} (C and Python), OpenCV 4.6 (C, Debian) and "
+        f"{cv2.__version__} (Python, pip)",
+        "",
+        "Per-frame time in ms. CPU = process CPU time, the fair measure on this shared machine (other jobs",
+        "were running; wall time mostly measures them); wall = monotonic clock.",
+        "",
+        "| step | CPU p50 | CPU p99 | wall p50 | wall p99 |",
+        "| --- | ---: | ---: | ---: | ---: |",
+    ]
+    md += [f"| {r[0]} | {f(r[1])} | {f(r[2])} | {f(r[3])} | {f(r[4])} |" for r in rows]
+    md += [
+        "",
+        "| ratio (p50) | CPU | wall | target |",
+        "| --- | ---: | ---: | --- |",
+        f"| poseinfer total / (bare OrtRun + decode) | {r_cpu[0]:.2f} | {r_wall[0]:.2f} | <= 1.15 |",
+        f"| poseinfer total / (bare OrtRun + decode + its preprocessing) | {r_cpu[1]:.2f} | {r_wall[1]:.2f} | "
+        "(glue overhead) |",
+        f"| Python total / poseinfer total | {r_cpu[2]:.2f} | {r_wall[2]:.2f} | >= 2 |",
+        "",
+        f"Idle daemon (`poseinfer --serve`, after one request, over {args.idle_seconds:.0f} s): "
+        f"**{idle:.2f} % CPU** (target ~0).",
+        "",
+    ]
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(md))
+    print("\n".join(md))
+    print(f"infer_bench: wrote {out}")
+
+
+if __name__ == "__main__":
+    main(get_args_parser().parse_args())
