@@ -199,7 +199,7 @@ def uniqueness(tex_lab, limit=30.0, step=3.0, size=VIEW_PX, progress=True):
         closest = closest_pairs(views, Rs, (MIN_SEP_DEG, FAR_SEP_DEG), bar)
         # Grid neighbours are pairs one step apart: measured exactly, they join the near search.
         b = int(np.argmin(steps))
-        if steps[b] < closest[MIN_SEP_DEG][0]:
+        if steps[b] <= closest[MIN_SEP_DEG][0]:     # ties: name the neighbouring pair
             closest[MIN_SEP_DEG] = (float(steps[b]), int(step_pairs[b, 0]), int(step_pairs[b, 1]))
     finally:
         bar.close()

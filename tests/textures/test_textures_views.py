@@ -46,3 +46,45 @@ def test_y_rotation_brings_negative_longitude_to_the_centre():
 def test_pose_grid_is_p1():
     g = views.pose_grid()
     assert g.shape == (9261, 3) and g.min() == -30 and g.max() == 30
+
+
+def test_projector_against_shared_vectors():
+    """Each visible vector point, seen where the orthographic view puts it, is the right (lat, lon)."""
+    import json
+    import pathlib
+    import pytest
+    spec = pathlib.Path(__file__).resolve().parents[2] / ".." / "shared" / "spec" / "vectors.json"
+    if not spec.exists():
+        pytest.skip("../shared/spec/vectors.json not found beside the repository")
+    cases = json.loads(spec.read_text())["cases"]
+    radius = json.loads(spec.read_text())["camera"]["sphere_diameter_mm"] / 2.0
+    checked = 0
+    for case in cases:
+        R = views.rotations(np.array([case["pose_deg"]], float))[0]
+        for p in case["points"]:
+            w = np.array(p["world_mm"]) / radius
+            if not p["visible"] or w[2] < 0.3 or abs(p["lat_deg"]) > 80:
+                continue
+            lat, lon = views.lonlat_from_direction(R.T @ w)
+            assert abs(lat - p["lat_deg"]) < 1e-4
+            assert abs(((lon - p["lon_deg"]) + 180) % 360 - 180) < 1e-4
+            checked += 1
+    assert checked > 5
+
+
+def test_candidate_search_matches_brute_force():
+    """The projected candidate search finds the exact closest pair on a small grid."""
+    from textures.generate import render
+    from textures.palette import srgb8_to_lab
+    tex = srgb8_to_lab(render(1, "bw", 256, 128)).astype(np.float32)
+    poses = views.pose_grid(30.0, 10.0)
+    v = views.render_views(tex, poses, 16)
+    Rs = views.rotations(poses)
+    got = views.closest_pairs(v, Rs, (3.0, 15.0))
+    n = len(poses)
+    d = np.sqrt(((v[:, None, :].astype(np.float64) - v[None, :, :]) ** 2).sum(2) / (v.shape[1] // 3))
+    tr = np.einsum("aij,bij->ab", Rs, Rs)
+    for sep in (3.0, 15.0):
+        ok = tr <= 1 + 2 * np.cos(np.radians(sep - views.SEP_TOL_DEG))
+        dd = np.where(ok & ~np.eye(n, dtype=bool), d, np.inf)
+        assert abs(got[sep][0] - dd.min()) < 1e-3 * max(1.0, dd.min())
