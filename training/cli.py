@@ -42,6 +42,8 @@ def _add_common(p):
     p.add_argument("--no-cache", dest="cache", action="store_false",
                    help="do not read or write the per-folder preprocessed-crop cache")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bars")
+    p.add_argument("--workers", type=int, default=0,
+                   help="processes preprocessing frames into the cache (0 = every core)")
 
 
 def get_args_parser():
@@ -66,6 +68,9 @@ def get_args_parser():
     t.add_argument("--lr", type=float, default=5e-4, help="AdamW learning rate (cosine-annealed per step to 0)")
     t.add_argument("--weight-decay", type=float, default=0.01, help="AdamW weight decay")
     t.add_argument("--warmup-steps", type=int, default=0, help="linear warm-up steps before the cosine")
+    t.add_argument("--time-budget", type=float, default=0.0,
+                   help="minutes of training: the cosine runs over wall time instead of steps and training "
+                        "stops when it is spent (--epochs is then an upper bound); 0 = off")
     t.add_argument("--loss", default="mae+phuber", choices=LOSSES, help="loss on wrapped Euler differences")
     t.add_argument("--delta", type=float, default=1.0, help="pseudo-Huber delta, degrees")
     t.add_argument("--rotmat-weight", type=float, default=1.0,
@@ -99,7 +104,7 @@ def get_args_parser():
     _add_common(x)
 
     s = sub.add_parser("study", help="the paper's six-texture study", formatter_class=_Formatter)
-    s.add_argument("--profile", default="quick", help="quick (2-core CPU, < 1 h) or p1 (the paper's protocol)")
+    s.add_argument("--profile", default="quick", help="quick (2-core CPU, < 1 h), p1 (the paper's protocol) or smoke (plumbing check)")
     s.add_argument("--out", required=True, help="study folder (datasets, runs, report.md)")
     s.add_argument("--textures", nargs="*", default=None, help="subset of texture names (default: all six)")
     s.add_argument("--texture-dir", default=None, help="folder of Texture_*.png (default: OUT/textures, generated)")
@@ -167,7 +172,7 @@ def _load_split(root, split, params, args, required):
         if required:
             raise SystemExit(f"posetrain: {d}: split folder missing")
         return None
-    return PoseSet(d, params, cache=args.cache, progress=args.progress)
+    return PoseSet(d, params, cache=args.cache, progress=args.progress, workers=args.workers)
 
 
 # ----------------------------------------------------------------------- train
@@ -203,7 +208,7 @@ def train(args):
 
     train_set = _load_split(args.data, "train", params, args, True)
     for extra in args.extra_train:
-        more = PoseSet(extra, params, cache=args.cache, progress=args.progress)
+        more = PoseSet(extra, params, cache=args.cache, progress=args.progress, workers=args.workers)
         train_set.images = torch.cat([train_set.images, more.images])
         train_set.labels = torch.cat([train_set.labels, more.labels])
         train_set.names = train_set.names + [f"{Path(extra).name}/{n}" for n in more.names]
@@ -217,10 +222,20 @@ def train(args):
     total = max(1, args.epochs * steps_per_epoch)
     warm = max(0, args.warmup_steps)
 
-    def lr_at(step):  # linear warm-up, then cosine annealing to 0 over the remaining steps
+    budget_s = 60.0 * args.time_budget
+    spent0 = ck.get("train_s", 0.0) if ck is not None else 0.0
+    train_clock = Timer()
+
+    def spent():
+        return spent0 + train_clock()
+
+    def lr_at(step):  # linear warm-up, then cosine annealing to 0 over the remaining steps (or time)
         if step < warm:
             return (step + 1) / warm
-        return 0.5 * (1 + np.cos(np.pi * min(1.0, (step - warm) / max(1, total - warm))))
+        frac = (step - warm) / max(1, total - warm)
+        if budget_s > 0:
+            frac = spent() / budget_s
+        return 0.5 * (1 + np.cos(np.pi * min(1.0, frac)))
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_at)
     g = torch.Generator().manual_seed(args.seed)
     best_mae = float("inf")
@@ -235,7 +250,8 @@ def train(args):
     saved_args = {k: v for k, v in vars(args).items() if k != "func"}
     for epoch in range(start_epoch, args.epochs):
         t_ep = Timer()
-        loss, tr_mae = train_one_epoch(model, optimizer, scheduler, train_set, params, args, device, g, epoch)
+        stop = (lambda: spent() >= budget_s) if budget_s > 0 else None
+        loss, tr_mae = train_one_epoch(model, optimizer, scheduler, train_set, params, args, device, g, epoch, stop)
         vm, _ = evaluate(model, val_set, params, device)
         lr = optimizer.param_groups[0]["lr"]
         log.write(epoch=epoch + 1, lr=f"{lr:.3g}", train_loss=f"{loss:.4f}", train_mae=f"{tr_mae:.4f}",
@@ -246,20 +262,23 @@ def train(args):
         state = {"model": model.state_dict(), "optimizer": optimizer.state_dict(),
                  "scheduler": scheduler.state_dict(), "generator": g.get_state(), "epoch": epoch,
                  "args": saved_args, "config": config, "val_metrics": vm,
-                 "best_mae": min(best_mae, vm["mae"])}
+                 "best_mae": min(best_mae, vm["mae"]), "train_s": spent()}
         if vm["mae"] < best_mae:
             best_mae = vm["mae"]
             torch.save(state, out / "best.pth.tmp")
             os.replace(out / "best.pth.tmp", out / "best.pth")
         torch.save(state, out / "checkpoint.pth.tmp")
         os.replace(out / "checkpoint.pth.tmp", out / "checkpoint.pth")
+        if budget_s > 0 and spent() >= budget_s:
+            print(f"posetrain: time budget of {args.time_budget:g} min spent after epoch {epoch + 1}", flush=True)
+            break
     train_s = timer()
 
     # final report on the best checkpoint
     model, ck = load_checkpoint(out / "best.pth", device)
     results = report_splits(model, ck["config"], args.data, args.eval_splits, out, args, device,
                             label=config["texture"], sets={"val": val_set})
-    info = {"texture": config["texture"], "epochs": args.epochs, "best_epoch": ck["epoch"] + 1,
+    info = {"texture": config["texture"], "epochs": ck_last_epoch(out), "best_epoch": ck["epoch"] + 1,
             "train_frames": len(train_set), "train_s": round(train_s, 1), "device": describe_device(device),
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "command": "posetrain " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("posetrain") else None}
@@ -269,6 +288,14 @@ def train(args):
         diff = export_onnx(model, ck["config"], out / "model.onnx", metrics_summary(results.get("val")), val_x)
         print(f"posetrain: wrote {out / 'model.onnx'} (onnxruntime vs PyTorch max diff {diff:.2g} deg)")
     return results
+
+
+def ck_last_epoch(out):
+    """Epochs completed, from the log."""
+    import csv
+    with open(Path(out) / "log.csv") as f:
+        rows = list(csv.DictReader(f))
+    return int(rows[-1]["epoch"]) if rows else 0
 
 
 def describe_device(device):

@@ -62,8 +62,9 @@ def _crop_file(path, params):
     return pp.crop(frame, cx, cy, r, bg, params)
 
 
-def load_crops(root, params, cache=True, progress=True):
-    """(crops uint8 [N, S, S, 3] RGB, labels [N, 3] float64, names) for a split folder."""
+def load_crops(root, params, cache=True, progress=True, workers=1):
+    """(crops uint8 [N, S, S, 3] RGB, labels [N, 3] float64, names) for a split folder.
+    workers: preprocessing processes (0 = every core)."""
     paths, labels = list_frames(root)
     root = Path(root)
     key = _cache_key(paths, params)
@@ -76,11 +77,24 @@ def load_crops(root, params, cache=True, progress=True):
                 return crops, labels, [p.name for p in paths]
         except Exception:
             pass  # unreadable cache: rebuild it
-    it = paths
+    workers = max(1, min(workers or (os.cpu_count() or 1), len(paths) // 64 or 1))
+    if workers > 1:
+        import multiprocessing
+        import functools
+        ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
+        pool = ctx.Pool(workers)
+        it = pool.imap(functools.partial(_crop_file, params=params), paths, chunksize=16)
+    else:
+        pool = None
+        it = (_crop_file(p, params) for p in paths)
     if progress:
         from tqdm import tqdm
-        it = tqdm(paths, desc=f"preprocess {root.name}", unit="frame", leave=False)
-    crops = np.stack([_crop_file(p, params)[:, :, ::-1] for p in it])  # BGR -> RGB
+        it = tqdm(it, total=len(paths), desc=f"preprocess {root.name}", unit="frame", leave=False)
+    try:
+        crops = np.stack([c[:, :, ::-1] for c in it])  # BGR -> RGB
+    finally:
+        if pool is not None:
+            pool.terminate()
     if cache:
         for old in root.glob(f"{CACHE_PREFIX}*.npz"):
             old.unlink(missing_ok=True)
@@ -93,8 +107,8 @@ def load_crops(root, params, cache=True, progress=True):
 class PoseSet:
     """An in-memory split: uint8 crops [N, 3, S, S] (RGB) and labels [N, 3] (float32, degrees)."""
 
-    def __init__(self, root, params, cache=True, progress=True):
-        crops, labels, names = load_crops(root, params, cache, progress)
+    def __init__(self, root, params, cache=True, progress=True, workers=1):
+        crops, labels, names = load_crops(root, params, cache, progress, workers)
         self.root, self.params, self.names = Path(root), params, names
         self.images = torch.from_numpy(np.ascontiguousarray(crops.transpose(0, 3, 1, 2)))
         self.labels = torch.from_numpy(labels.astype(np.float32))

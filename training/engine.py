@@ -14,8 +14,8 @@ from .losses import abs_err, pose_loss
 SPLITS = ("val", "test", "test_offgrid")
 
 
-def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, epoch):
-    """One pass over `data` (PoseSet); returns (mean loss, mean |error| deg)."""
+def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, epoch, should_stop=None):
+    """One pass over `data` (PoseSet), or until should_stop() is true; returns (mean loss, mean |error| deg)."""
     from tqdm import tqdm
     model.train()
     augment = {"photometric": args.photometric, "geometric": args.geometric}
@@ -40,6 +40,8 @@ def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, 
         tot_err += float(abs_err(out["euler_deg"].detach(), y).mean()) * b
         n += b
         bar.set_postfix(loss=f"{tot_loss / n:.3f}", mae=f"{tot_err / n:.3f}")
+        if should_stop is not None and should_stop():
+            break
     return tot_loss / max(n, 1), tot_err / max(n, 1)
 
 

@@ -62,7 +62,12 @@ def find_sphere(frame, p=None):
     frame = _as_bgr(frame)
     h, w = frame.shape[:2]
     bg = background_colour(frame, p)
-    diff = np.abs(frame.astype(np.float64) - bg).max(axis=2)
+    # max over channels of |I_c - bg_c|, channel by channel (numpy's max over a length-3 last axis
+    # is slow); float32 is exact here: I_c is an integer and bg_c an integer or a half
+    f = frame.astype(np.float32)
+    diff = np.abs(f[:, :, 0] - np.float32(bg[0]))
+    for c in (1, 2):
+        np.maximum(diff, np.abs(f[:, :, c] - np.float32(bg[c])), out=diff)
     mask = np.where(diff > p["fg_threshold"], 255, 0).astype(np.uint8)
     k = 2 * math.floor(p["close_frac"] * min(h, w) / 2) + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
