@@ -1,6 +1,6 @@
 """The paper's texture design criteria (section 3.3), measured on a texture image.
 
-Each check returns a dict: name, value (the measured number), unit,
+Each check returns a dict: id (stable key for machines), name, value (the measured number), unit,
 requirement (text), passed (True, False, or None for reported-only values)
 and details. docs/textures.md describes every measurement; in short:
 
@@ -104,10 +104,10 @@ def stripe_spacing(ink):
                 best = (eta, f"along the meridian {lon:.1f} deg near latitude {lat:.1f} deg")
     eta, where = best
     if not np.isfinite(eta):
-        return {"name": "stripe spacing ratio", "value": None, "unit": "%",
+        return {"id": "eta", "name": "stripe spacing ratio", "value": None, "unit": "%",
                 "requirement": f">= {ETA_MIN * 100:.0f} %", "passed": False,
                 "details": "no two stripes found on any ring or meridian"}
-    return {"name": "stripe spacing ratio", "value": round(eta * 100, 2), "unit": "%",
+    return {"id": "eta", "name": "stripe spacing ratio", "value": round(eta * 100, 2), "unit": "%",
             "requirement": f">= {ETA_MIN * 100:.0f} %", "passed": bool(eta >= ETA_MIN),
             "details": f"smallest centre-to-centre stripe distance, {where}"}
 
@@ -121,7 +121,7 @@ def area_ratio(ink):
     sphere = float((ink.mean(1) * wts).sum() / wts.sum())
     ratio = share / max(1.0 - share, 1e-12)
     lo, hi = INK_SHARE_RANGE
-    return {"name": "texture:blank area ratio", "value": round(ratio, 3), "unit": ":1",
+    return {"id": "area_ratio", "name": "texture:blank area ratio", "value": round(ratio, 3), "unit": ":1",
             "requirement": f"ink share {lo * 100:.0f}..{hi * 100:.0f} % of pixels (1:1 +- tolerance)",
             "passed": bool(lo <= share <= hi),
             "details": f"ink {share * 100:.1f} % of image pixels, {sphere * 100:.1f} % of the sphere's surface"}
@@ -132,7 +132,7 @@ def colour_difference(pal):
     k = len(pal.lab)
     names = [f"#{r:02x}{g:02x}{b:02x}" for r, g, b in pal.rgb]
     if k < 2:
-        return {"name": "colour difference dE2000", "value": None, "unit": "",
+        return {"id": "delta_e2000", "name": "colour difference dE2000", "value": None, "unit": "",
                 "requirement": f"> {DE_MIN:.0f} for every pair", "passed": False,
                 "details": "only one colour"}
     best = (np.inf, None)
@@ -143,7 +143,7 @@ def colour_difference(pal):
             pairs.append(f"{names[i]}-{names[j]} {d:.1f}")
             if d < best[0]:
                 best = (d, (names[i], names[j]))
-    return {"name": "colour difference dE2000", "value": round(best[0], 1), "unit": "",
+    return {"id": "delta_e2000", "name": "colour difference dE2000", "value": round(best[0], 1), "unit": "",
             "requirement": f"> {DE_MIN:.0f} for every pair", "passed": bool(best[0] > DE_MIN),
             "details": f"smallest between {best[1][0]} and {best[1][1]}; all pairs: " + ", ".join(pairs)}
 
@@ -202,11 +202,11 @@ def tamura_checks(rgb):
     crs, con, dirn = tamura(gray)
     note = "reported, no threshold"
     return [
-        {"name": "Tamura coarseness", "value": round(crs, 2), "unit": "deg", "requirement": note,
+        {"id": "tamura_coarseness", "name": "Tamura coarseness", "value": round(crs, 2), "unit": "deg", "requirement": note,
          "passed": None, "details": "mean best window 2^k (k = 1..5) at width 512, in degrees of longitude"},
-        {"name": "Tamura contrast", "value": round(con, 1), "unit": "", "requirement": note,
+        {"id": "tamura_contrast", "name": "Tamura contrast", "value": round(con, 1), "unit": "", "requirement": note,
          "passed": None, "details": "sigma / kurtosis^(1/4) of L* scaled to 0..255"},
-        {"name": "Tamura directionality", "value": round(dirn, 3), "unit": "", "requirement": note,
+        {"id": "tamura_directionality", "name": "Tamura directionality", "value": round(dirn, 3), "unit": "", "requirement": note,
          "passed": None, "details": "1 - n_peaks * spread of edge directions around peaks / uniform spread"},
     ]
 
@@ -218,7 +218,7 @@ def uniqueness_check(rgb, step=3.0, progress=True):
     u = views.uniqueness(srgb8_to_lab(tex).astype(np.float32), step=step, progress=progress)
     near, far = u["near"], u["far"]
     fmt = lambda p: "(" + ", ".join(f"{v:g}" for v in p) + ")"
-    return {"name": "orientation uniqueness", "value": round(u["U"], 3), "unit": "x step",
+    return {"id": "uniqueness", "name": "orientation uniqueness", "value": round(u["U"], 3), "unit": "x step",
             "requirement": f">= {u['threshold']:g} x the median {step:g} deg step",
             "passed": u["pass"],
             "details": (f"most alike poses >= {near['min_sep_deg']:g} deg apart: {fmt(near['pose_a'])} and "

@@ -26,9 +26,13 @@ The deliberately symmetric variant (unbroken bands) is what the tests use
 to show the uniqueness criterion failing.
 
 Texture 2 keeps Texture 1's stripes (narrower, to keep the area ratio) and
-adds column stripes (meridian segments) that start and end inside horizontal
-stripes. Texture 3 adds more column stripes, and two of its stripe rows are
-cut into short horizontal stripes hanging off the columns.
+adds column stripes (meridian segments) running from the centre line of one
+stripe row to another. Texture 3 adds more column stripes, and two of its
+stripe rows are cut into short horizontal stripes hanging off the columns.
+
+Measured (docs/textures.md): eta 5.8 %, ink 49 % of the pixels, uniqueness
+U = 0.32 / 0.35 (Texture 1 bw / color), 0.55 / 0.70 (2), 0.70 / 0.74 (3)
+against the pass mark 0.15; the unbroken bands give U = 0.
 
 The bw and color versions of a level share one layout: each rectangle has a
 colour slot (black, green or blue); bw paints every slot black.
