@@ -69,10 +69,13 @@ def cmd_generate(args):
 
 
 def _format_value(ch):
-    v = ch["value"]
+    """Measured value with its unit, '-' when there is none."""
+    v, unit = ch["value"], ch["unit"]
     if v is None:
         return "-"
-    return f"{v}{' ' + ch['unit'] if ch['unit'] and ch['unit'] != ':1' else (':1' if ch['unit'] == ':1' else '')}"
+    if unit == ":1":
+        return f"{v}:1"
+    return f"{v} {unit}" if unit else f"{v}"
 
 
 def format_table(path, checks, palette):

@@ -91,6 +91,17 @@ def _segment_distance(p, a, b):
     return float(np.linalg.norm(p - (a + t * ab))), t
 
 
+def _is_blend(centres, share, c):
+    """True when colour c lies between two more common colours (a mix of them)."""
+    others = [k for k in range(len(centres)) if k != c and share[k] > share[c]]
+    for i, a in enumerate(others):
+        for b in others[i + 1:]:
+            dist, t = _segment_distance(centres[c], centres[a], centres[b])
+            if dist < BLEND_DE76 and 0.05 < t < 0.95:
+                return True
+    return False
+
+
 def _edge_fraction(labels, j):
     """Share of pixels labelled j that have a 4-neighbour with another label."""
     m = labels == j
@@ -157,12 +168,7 @@ def find_palette(rgb, seed=0):
             labels = ulabels[inverse].reshape(h, w)
             dropped = False
             for c in np.argsort(share):
-                others = [k for k in range(len(centres)) if k != c and share[k] > share[c]]
-                is_between = any(
-                    (lambda dt: dt[0] < BLEND_DE76 and 0.05 < dt[1] < 0.95)(
-                        _segment_distance(centres[c], centres[a], centres[b]))
-                    for ai, a in enumerate(others) for b in others[ai + 1:])
-                if is_between and _edge_fraction(labels, c) >= BLEND_EDGE_FRAC:
+                if _is_blend(centres, share, c) and _edge_fraction(labels, c) >= BLEND_EDGE_FRAC:
                     centres = np.delete(centres, c, 0)
                     dropped = True
                     break

@@ -19,11 +19,12 @@ Uniqueness (docs/textures.md, "Orientation uniqueness"):
   The far variant (pairs >= 9 degrees apart) is reported beside it: it shows
   global twins (symmetries) rather than locally weak steps.
 
-The exact minimum over all 43 million pairs is found without computing all
-distances in full: views are projected on their first principal components
-(a projection never increases a distance), the nearest candidates per pose
-are measured exactly, then every pair whose projected distance is still
-below the exact minimum found is measured exactly as well.
+The 43 million pairs are not all measured in full: views are projected on
+their first PCA_DIMS principal components, each pose's CANDIDATES nearest
+poses in that projection (among those far enough away) and every pair of
+grid neighbours are measured exactly, and the smallest of those is reported.
+Exact twins project to the same point, so symmetries are always found; a
+test checks the search against brute force on a coarse grid.
 """
 import numpy as np
 from tqdm import tqdm
