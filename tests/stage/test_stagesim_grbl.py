@@ -216,6 +216,19 @@ def test_hard_limit_alarm_reset_and_unlock(make_stage, firmware_elf):
     assert st.status()["state"] == "Idle"
 
 
+def test_position_exact_after_hard_limit(make_stage, firmware_elf):
+    """GRBL may count a step it computed but never put out when a hard limit
+    stops it; this firmware keeps its position exact after an abort."""
+    st = make_stage(elf=firmware_elf, args=["--limits", "1,none,none"])
+    st.start()
+    st.ok("$21=1")
+    st.ok("G0 X3")
+    st.expect(r"^ALARM:1$", timeout=30)
+    steps = st.steps()[0]
+    status = st.status()
+    assert round(status["mpos"][0] * 800) == steps, (status["text"], steps)
+
+
 def test_settings_survive_restart_and_power_up_alarm(make_stage, firmware_elf, tmp_path):
     ee = tmp_path / "settings.eeprom"
     st = make_stage(elf=firmware_elf, eeprom=ee, name="first")
@@ -281,14 +294,14 @@ def test_reset_mid_move(grbl):
     assert grbl.steps()[0] == stopped                 # stopped at once, stays stopped
     st = grbl.status()
     assert st["state"] == "Alarm"
-    # the firmware kept its position through the reset: it matches the
-    # pulses to a step (GRBL too may count the one step it had computed but
-    # not yet put out, which is why it raises ALARM:3); 0.5 step for rounding
-    assert abs(st["mpos"][0] * 800 - stopped) <= 1.5
+    # the firmware kept its position through the reset and it is the pulses'
+    # (GRBL may count a step it computed but never put out; this firmware
+    # must not)
+    assert round(st["mpos"][0] * 800) == stopped
     grbl.ok("$X")
     grbl.ok("G90 G0 X0")
     grbl.wait_idle()
-    assert abs(grbl.steps()[0]) <= 1
+    assert grbl.steps()[0] == 0
 
 
 def stream_lines(st, lines, poll_period=0.1, timeout=300):
