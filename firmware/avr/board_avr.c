@@ -138,16 +138,16 @@ void board_eeprom_write(uint16_t addr, uint8_t v)
 
 void board_stepper_enable(uint8_t on)
 {
-  // The shield's enable is active low; $4 inverts.
+  // The shield's enable is active low; $4 inverts. (Single-bit cbi/sbi: atomic.)
   if (on ^ enable_invert) ENABLE_PORT &= ~(1 << ENABLE_BIT);
   else ENABLE_PORT |= (1 << ENABLE_BIT);
 }
 
 void board_stepper_config(uint8_t pulse_us, uint8_t step_idle_bits, uint8_t invert_enable)
 {
-  uint32_t cycles = (uint32_t)pulse_us * (F_CPU / 1000000UL) + STEP_PULSE_LATENCY_CYCLES;
+  uint32_t cycles = (uint32_t)pulse_us * (F_CPU / 1000000UL);
   pulse_ticks[1] = cycles > 255 ? 255 : cycles;
-  pulse_ticks[2] = (cycles + 7) >> 3;
+  pulse_ticks[2] = ((cycles + 7) >> 3) + 1;
   pulse_ticks[3] = ((cycles + 63) >> 6) + 1;
   step_idle_port = (step_idle_bits << STEP_SHIFT) & STEP_MASK;
   enable_invert = invert_enable;
@@ -159,20 +159,40 @@ void board_stepper_config(uint8_t pulse_us, uint8_t step_idle_bits, uint8_t inve
 
 void board_step_write(uint8_t axis_bits)
 {
+  uint8_t s = SREG;   // the step ISR calls this with interrupts off; st_reset does not
+  cli();
   STEP_PORT = (STEP_PORT & ~STEP_MASK) | ((axis_bits << STEP_SHIFT) & STEP_MASK);
+  SREG = s;
 }
 
 void board_dir_write(uint8_t axis_bits)
 {
+  // Step and direction share PORTD: the pulse-end interrupt must not land
+  // inside this read-modify-write, or the old step level is written back.
+  uint8_t s = SREG;
+  cli();
   DIR_PORT = (DIR_PORT & ~DIR_MASK) | ((axis_bits << DIR_SHIFT) & DIR_MASK);
+  SREG = s;
+}
+
+void board_step_pulse_start(void)
+{
+  // The pulse ends $0 us after the pins were set, however late the step
+  // interrupt started (another interrupt may have delayed it): measured from
+  // the counter, never from the compare match. The counter is only read.
+  uint16_t end = TCNT1 + pulse_ticks[step_prescale];
+  uint16_t top = OCR1A;
+  if (end >= top) end = top - 1;   // only for periods shorter than the pulse (prevented by the planner)
+  if (end == 0) end = 1;           // a compare of 0 never fires in simavr
+  OCR1B = end;
+  TIFR1 = (1 << OCF1B);            // a match of the previous value must not end this pulse
 }
 
 void board_step_timer_set(uint16_t ticks, uint8_t prescale)
 {
   // Called right after a compare match (TCNT1 small), so the new period is
-  // never below the counter. OCR1B ends the pulse and stays below OCR1A.
+  // never below the counter.
   OCR1A = ticks;
-  OCR1B = pulse_ticks[prescale];
   if (prescale != step_prescale) {
     step_prescale = prescale;
     if (TCCR1B & 7) TCCR1B = (1 << WGM12) | prescale;

@@ -22,6 +22,7 @@ void board_eeprom_write(uint16_t addr, uint8_t v);  // main loop: one byte, wait
 void board_stepper_enable(uint8_t on);    // any context: drivers on (1) / off (0); invert applied here
 void board_stepper_config(uint8_t pulse_us, uint8_t step_idle_bits, uint8_t enable_invert); // main loop: after settings change
 void board_step_write(uint8_t axis_bits); // step ISR: step pins = axis bits (bit 0 = X), inversion done by caller
+void board_step_pulse_start(void);        // step ISR, right after board_step_write: end the pulse $0 us from now
 void board_dir_write(uint8_t axis_bits);  // step ISR / main: direction pins, inversion done by caller
 void board_step_timer_set(uint16_t ticks, uint8_t prescale); // step ISR / main: period in ticks of 1 (1), 8 (2) or 64 (3) cycles
 void board_step_timer_start(void);        // main loop: start the step interrupt (first tick after one period)

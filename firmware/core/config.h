@@ -32,10 +32,10 @@
 // Step timing. Timer1 in CTC mode: OCR1A is the step period, OCR1B ends the
 // pulse. Both are never 0 (simavr 1.6 never fires a CTC compare of 0), and
 // TCNT1 is never preloaded (starting the clock resets it in simavr).
-// The pulse starts a few cycles after the compare match (ISR entry); the
-// pulse-end compare is set this many cycles later so the pin stays high for
-// at least $0 microseconds.
-#define STEP_PULSE_LATENCY_CYCLES 128
+// The pulse-end compare is set from the counter when the pins go high, so
+// a late step interrupt cannot shorten the pulse; the period must leave room
+// for the interrupt's own latency and run time as well.
+#define STEP_PULSE_LATENCY_CYCLES 96
 #define STEP_LOW_MIN_CYCLES 64        // minimum low time before the next pulse
 #define MAX_STEP_RATE_HZ 40000UL      // settings are refused above this ($100*$110/60)
 

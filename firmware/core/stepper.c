@@ -149,6 +149,7 @@ void st_isr(void)
 {
   if (busy) return;   // the previous tick is still running: keep its pulse
   board_step_write(st.step_outbits);
+  board_step_pulse_start();
   st.pending_bits = 0;
   busy = 1;
   board_irq_enable(); // let the pulse-end compare and the UART in
@@ -179,18 +180,25 @@ void st_isr(void)
     }
   }
 
+  // Bresenham, unrolled: this is the hot path (one pass per step tick).
   st_block_t *b = st.exec_block;
+  uint32_t ev = b->step_event_count;
   uint8_t bits = 0;
-  for (uint8_t i = 0; i < N_AXIS; i++) {
-    st.counter[i] += b->steps[i];
-    if (st.counter[i] > b->step_event_count) {
-      bits |= bit(i);
-      st.counter[i] -= b->step_event_count;
-      if (b->count_position) {
-        if (b->dir_sign_bits & bit(i)) sys_position[i]--;
-        else sys_position[i]++;
-      }
-    }
+  uint32_t c;
+  c = st.counter[X_AXIS] + b->steps[X_AXIS];
+  if (c > ev) { bits |= bit(X_AXIS); c -= ev; }
+  st.counter[X_AXIS] = c;
+  c = st.counter[Y_AXIS] + b->steps[Y_AXIS];
+  if (c > ev) { bits |= bit(Y_AXIS); c -= ev; }
+  st.counter[Y_AXIS] = c;
+  c = st.counter[Z_AXIS] + b->steps[Z_AXIS];
+  if (c > ev) { bits |= bit(Z_AXIS); c -= ev; }
+  st.counter[Z_AXIS] = c;
+  if (bits && b->count_position) {
+    uint8_t neg = b->dir_sign_bits;
+    if (bits & bit(X_AXIS)) { if (neg & bit(X_AXIS)) sys_position[X_AXIS]--; else sys_position[X_AXIS]++; }
+    if (bits & bit(Y_AXIS)) { if (neg & bit(Y_AXIS)) sys_position[Y_AXIS]--; else sys_position[Y_AXIS]++; }
+    if (bits & bit(Z_AXIS)) { if (neg & bit(Z_AXIS)) sys_position[Z_AXIS]--; else sys_position[Z_AXIS]++; }
   }
   if (sys.state == STATE_HOMING) bits &= sys.homing_axis_lock;
   st.pending_bits = bits;

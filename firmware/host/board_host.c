@@ -96,6 +96,7 @@ void board_step_write(uint8_t axis_bits)
 }
 
 void board_dir_write(uint8_t axis_bits) { dir_pins = axis_bits; }
+void board_step_pulse_start(void) {}
 
 void board_step_timer_set(uint16_t ticks, uint8_t prescale)
 {

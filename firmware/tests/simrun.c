@@ -42,6 +42,10 @@ static void xoff(struct avr_irq_t *irq, uint32_t v, void *p) { uart_xoff = 1; }
 static void pin_change(struct avr_irq_t *irq, uint32_t v, void *p)
 {
   int pin = (int)(intptr_t)p;
+  static long long t0 = -1, t1 = -1;
+  if (t0 < 0) { char *e = getenv("SIMRUN_TRACE"); if (e) sscanf(e, "%lld,%lld", &t0, &t1); }
+  if (t0 >= 0 && (long long)avr->cycle >= t0 && (long long)avr->cycle <= t1)
+    fprintf(stderr, "pin D%d=%u at %llu\n", pin, v, (unsigned long long)avr->cycle);
   if (pin >= 5) { dir[pin - 5] = v; return; }
   int a = pin - 2;
   if (v) {
@@ -50,6 +54,7 @@ static void pin_change(struct avr_irq_t *irq, uint32_t v, void *p)
     if (last_rise[a]) {
       avr_cycle_count_t d = avr->cycle - last_rise[a];
       if (!min_interval[a] || d < min_interval[a]) min_interval[a] = d;
+      if (d < 300 && getenv("SIMRUN_DEBUG")) fprintf(stderr, "close steps axis %d: %llu cycles at %llu\n", a, (unsigned long long)d, (unsigned long long)avr->cycle);
     }
     last_rise[a] = avr->cycle;
   } else if (rise[a]) {
@@ -109,6 +114,16 @@ int main(int argc, char **argv)
 
   FILE *s = fopen(argv[2], "r");
   if (!s) { fprintf(stderr, "simrun: cannot open %s\n", argv[2]); return 1; }
+  // SIMRUN_ISR=ENTRY,RETI[,RETI...] (byte addresses): measure that interrupt
+  // handler from its first instruction to its reti, nested interrupts included.
+  uint32_t isr_entry = 0, isr_reti[8];
+  int n_reti = 0;
+  unsigned long long isr_max = 0, isr_n = 0, isr_start = 0, isr_sum = 0;
+  if (getenv("SIMRUN_ISR")) {
+    char *p = getenv("SIMRUN_ISR"), *e;
+    isr_entry = strtoul(p, &e, 16);
+    while (*e == ',' && n_reti < 8) { p = e + 1; isr_reti[n_reti++] = strtoul(p, &e, 16); }
+  }
   char line[512];
   int state = cpu_Running;
   while (fgets(line, sizeof(line), s)) {
@@ -118,7 +133,24 @@ int main(int argc, char **argv)
     if (*text == ' ') text++;
     text[strcspn(text, "\r\n")] = 0;
     avr_cycle_count_t until = (avr_cycle_count_t)(ms * (F / 1000));
-    while (avr->cycle < until && state != cpu_Done && state != cpu_Crashed) state = avr_run(avr);
+    while (avr->cycle < until && state != cpu_Done && state != cpu_Crashed) {
+      state = avr_run(avr);
+      if (isr_entry) {
+        if (avr->pc == isr_entry && !isr_start) isr_start = avr->cycle;
+        else if (isr_start) {
+          for (int i = 0; i < n_reti; i++) {
+            if (avr->pc == isr_reti[i]) {
+              // the reti itself is the next instruction (4 cycles)
+              unsigned long long d = avr->cycle - isr_start + 4;
+              if (d > isr_max) isr_max = d;
+              isr_sum += d;
+              isr_n++;
+              isr_start = 0;
+            }
+          }
+        }
+      }
+    }
     if (!strcmp(text, "end")) break;
     if (text[0] == '!') { enqueue((unsigned char)strtol(text + 1, NULL, 16)); continue; }
     int ax, on;
@@ -131,6 +163,7 @@ int main(int argc, char **argv)
   }
   printf("\nSTEPS %ld %ld %ld\n", steps[0], steps[1], steps[2]);
   printf("SHORT_PULSES %ld\n", n_short);
+  if (isr_entry) printf("ISR_CYCLES max %llu mean %.1f n %llu\n", isr_max, isr_n ? (double)isr_sum / isr_n : 0.0, isr_n);
   printf("MIN_PULSE_CYCLES %llu MIN_INTERVAL %llu %llu %llu CYCLE %llu\n", (unsigned long long)min_pulse,
          (unsigned long long)min_interval[0], (unsigned long long)min_interval[1],
          (unsigned long long)min_interval[2], (unsigned long long)avr->cycle);
