@@ -188,8 +188,11 @@ extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pi
             m->m.release();
             return -1;
         }
-        int ch = m->m.channels();
-        if (ch == 2) cv::cvtColor(m->m, m->m, cv::COLOR_GRAY2BGR); // unusual; keep 8-bit BGR
+        if (m->m.channels() != 1 && m->m.channels() != 3 && m->m.channels() != 4) {
+            seterr(err, "decode", "expected 1, 3 or 4 channels");
+            m->m.release();
+            return -1;
+        }
         out->data = m->m.data;
         out->width = m->m.cols;
         out->height = m->m.rows;

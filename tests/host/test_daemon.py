@@ -49,6 +49,8 @@ class Daemon:
         self.proc.send_signal(sig)
         rc = self.proc.wait(timeout=30 * self.scale)
         self.rest = self.proc.stderr.read()
+        for bad in ("AddressSanitizer", "LeakSanitizer", "runtime error"):
+            assert bad not in self.rest, self.rest
         return rc
 
 
