@@ -16,18 +16,22 @@ uint8_t read_float(const char *line, uint8_t *char_counter, float *value)
   else if (c == '+') { c = *ptr++; }
 
   uint32_t intval = 0;
-  int8_t exp = 0;
-  uint8_t ndigit = 0;
+  int16_t exp = 0;
+  uint8_t ndigit = 0;    // significant digits (leading zeros do not count)
+  uint8_t has_digit = 0;
   uint8_t isdecimal = 0;
   for (;;) {
     uint8_t d = c - '0';
     if (d <= 9) {
-      ndigit++;
-      if (ndigit <= MAX_INT_DIGITS) {
+      has_digit = 1;
+      if (d == 0 && ndigit == 0) {
+        if (isdecimal && exp > -100) exp--;
+      } else if (++ndigit <= MAX_INT_DIGITS) {
         if (isdecimal) exp--;
         intval = intval * 10 + d;
-      } else if (!isdecimal) {
-        if (++exp > MAX_EXPONENT) return 0;
+      } else {
+        ndigit = MAX_INT_DIGITS + 1;
+        if (!isdecimal && ++exp > MAX_EXPONENT) return 0;
       }
     } else if (c == '.' && !isdecimal) {
       isdecimal = 1;
@@ -36,7 +40,7 @@ uint8_t read_float(const char *line, uint8_t *char_counter, float *value)
     }
     c = *ptr++;
   }
-  if (!ndigit) return 0;
+  if (!has_digit) return 0;
 
   float fval = (float)intval;
   if (fval != 0) {

@@ -97,6 +97,16 @@ plan_block_t *plan_get_current_block(void)
   return &block_buffer[block_buffer_tail];
 }
 
+plan_block_t *plan_peek_block(uint8_t n)
+{
+  uint8_t i = block_buffer_tail;
+  while (n--) {
+    if (i == block_buffer_head) return NULL;
+    i = plan_next_block_index(i);
+  }
+  return i == block_buffer_head ? NULL : &block_buffer[i];
+}
+
 void plan_discard_current_block(void)
 {
   if (block_buffer_head != block_buffer_tail) {

@@ -36,6 +36,7 @@ typedef struct {
 void plan_reset(void);                              // main loop: empty the buffer and state
 uint8_t plan_buffer_line(const float *target, const plan_line_data_t *pl_data); // main loop: queue a move to target (deg); PLAN_OK or PLAN_EMPTY_BLOCK
 plan_block_t *plan_get_current_block(void);          // main loop / prep: block being executed, or NULL
+plan_block_t *plan_peek_block(uint8_t n);            // tests: the n-th queued block after the current one, or NULL
 void plan_discard_current_block(void);              // prep (main loop): block finished
 float plan_get_exec_block_exit_speed_sqr(void);     // prep: entry speed of the next block
 uint8_t plan_check_full_buffer(void);               // main loop: 1 when no block is free

@@ -102,7 +102,7 @@ void protocol_process_char(uint8_t c)
     if (c == ')' && (line_flags & LINE_FLAG_COMMENT_PARENTHESES)) line_flags &= ~LINE_FLAG_COMMENT_PARENTHESES;
     return;
   }
-  if (c <= ' ') return;                 // whitespace and control bytes (NUL too) are dropped, as GRBL
+  if (c <= ' ' || c == 0x7f) return;    // whitespace and control bytes (NUL, DEL too) are dropped
   if (c == '/') return;                 // block delete: not supported, ignored as GRBL
   if (c == '(') { line_flags |= LINE_FLAG_COMMENT_PARENTHESES; return; }
   if (c == ';') { line_flags |= LINE_FLAG_COMMENT_SEMICOLON; return; }
@@ -144,7 +144,8 @@ void protocol_buffer_synchronize(void)
 
 void protocol_auto_cycle_start(void)
 {
-  if (plan_get_current_block() != NULL) system_set_exec_state_flag(EXEC_CYCLE_START);
+  // Only from idle: a hold is resumed by '~' alone, never by queued input.
+  if (sys.state == STATE_IDLE && plan_get_current_block() != NULL) system_set_exec_state_flag(EXEC_CYCLE_START);
 }
 
 void protocol_execute_realtime(void)

@@ -19,13 +19,13 @@
 static char h_out[1 << 16];   // accumulated output not yet taken
 static size_t h_out_len;
 
-static void h_collect(void)
+static inline void h_collect(void)
 {
   h_out_len += host_output(h_out + h_out_len, sizeof(h_out) - h_out_len);
 }
 
 // Power-on: fresh board state, EEPROM kept (erase it first for a new chip).
-static void h_boot(void)
+static inline void h_boot(void)
 {
   memset((void *)sys_position, 0, sizeof(sys_position));   // RAM is cleared at power-on
   board_init();
@@ -37,12 +37,12 @@ static void h_boot(void)
   h_collect();
 }
 
-static void h_erase_eeprom(void)
+static inline void h_erase_eeprom(void)
 {
   memset(host_eeprom, 0xff, sizeof(host_eeprom));
 }
 
-static int h_busy(void)
+static inline int h_busy(void)
 {
   return serial_get_rx_buffer_available() < RX_BUFFER_SIZE - 1 || host_timer_running() ||
          (plan_get_current_block() != NULL && !(sys.state & (STATE_HOLD | STATE_ALARM))) ||
@@ -51,7 +51,7 @@ static int h_busy(void)
 
 // Run the main loop until input is consumed and motion has stopped (or a
 // hold has completed). Handles soft resets like main() does. max_ms bounds it.
-static void h_run(uint32_t max_ms)
+static inline void h_run(uint32_t max_ms)
 {
   uint32_t start = board_millis();
   for (;;) {
@@ -64,7 +64,7 @@ static void h_run(uint32_t max_ms)
 }
 
 // Send bytes as a sender would, feeding the RX buffer as it drains.
-static void h_send_bytes(const char *s, size_t n)
+static inline void h_send_bytes(const char *s, size_t n)
 {
   for (size_t i = 0; i < n; i++) {
     while (serial_get_rx_buffer_available() == 0) {
@@ -75,7 +75,7 @@ static void h_send_bytes(const char *s, size_t n)
   }
 }
 
-static void h_send(const char *line)
+static inline void h_send(const char *line)
 {
   h_send_bytes(line, strlen(line));
   h_send_bytes("\n", 1);
@@ -83,7 +83,7 @@ static void h_send(const char *line)
 }
 
 // Take all output so far (the buffer stays valid until the next h_ call).
-static const char *h_take(void)
+static inline const char *h_take(void)
 {
   static char taken[sizeof(h_out)];
   h_collect();

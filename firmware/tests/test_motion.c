@@ -1,0 +1,238 @@
+// Planner profiles and step generation: junction speeds, trapezoids, move
+// times, exact step counts, hold/resume, reset, backlash.
+#include <stdarg.h>
+#include <stddef.h>
+#include <setjmp.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <math.h>
+#include <cmocka.h>
+#include "harness.h"
+#include "nuts.h"
+#include "codes.h"
+
+#define ACCEL_DEG_MIN2 (90.0f * 3600.0f)
+
+static int setup(void **state)
+{
+  h_erase_eeprom();
+  memset(host_motor_steps, 0, sizeof(host_motor_steps));
+  h_boot();
+  h_take();
+  host_max_step_rate_hz = 0;
+  return 0;
+}
+
+static void queue(float x, float y, float z, float feed, uint8_t rapid)
+{
+  float t[N_AXIS] = {x, y, z};
+  plan_line_data_t pl = {.feed_rate = feed, .condition = rapid ? PL_COND_FLAG_RAPID_MOTION : 0};
+  assert_int_equal(plan_buffer_line(t, &pl), PLAN_OK);
+}
+
+static void test_single_block_profile(void **state)
+{
+  queue(10, 0, 0, 600, 0);
+  plan_block_t *b = plan_peek_block(0);
+  assert_non_null(b);
+  assert_int_equal(b->step_event_count, 8000);
+  assert_float_equal(b->millimeters, 10.0f, 1e-5);
+  assert_float_equal(b->entry_speed_sqr, 0.0f, 0);
+  assert_float_equal(b->nominal_speed_sqr, 600.0f * 600.0f, 1e-2);
+  assert_float_equal(b->acceleration, ACCEL_DEG_MIN2, 1);
+}
+
+static void test_collinear_blocks_keep_speed(void **state)
+{
+  queue(10, 0, 0, 600, 0);
+  queue(20, 0, 0, 600, 0);
+  plan_block_t *b = plan_peek_block(1);
+  assert_float_equal(b->entry_speed_sqr, 600.0f * 600.0f, 1);
+}
+
+static void test_reversal_stops(void **state)
+{
+  queue(10, 0, 0, 600, 0);
+  queue(0, 0, 0, 600, 0);
+  assert_float_equal(plan_peek_block(1)->entry_speed_sqr, 0.0f, 0);
+  assert_int_equal(plan_peek_block(1)->direction_bits, 1);
+}
+
+static void test_corner_junction_deviation(void **state)
+{
+  queue(10, 0, 0, 600, 0);
+  queue(10, 10, 0, 600, 0);
+  // GRBL's junction model: the centripetal acceleration along the bisector
+  // (here both axes at once: sqrt 2 x one axis' limit) over the deviation.
+  float s = sqrtf(0.5f);
+  float v2 = ACCEL_DEG_MIN2 * sqrtf(2.0f) * 0.01f * s / (1.0f - s);
+  assert_float_equal(plan_peek_block(1)->entry_speed_sqr, v2, v2 * 1e-4f);
+}
+
+static void test_short_blocks_limited_by_acceleration(void **state)
+{
+  // Three short collinear blocks at a high feed: the second can only be
+  // entered at the speed reachable from rest over the first.
+  queue(0.05f, 0, 0, 1800, 0);
+  queue(0.10f, 0, 0, 1800, 0);
+  queue(0.15f, 0, 0, 1800, 0);
+  float v2 = 2 * ACCEL_DEG_MIN2 * 0.05f;
+  assert_float_equal(plan_peek_block(1)->entry_speed_sqr, v2, v2 * 1e-4f);
+  // The last block must stop: entry limited by its own length too.
+  assert_true(plan_peek_block(2)->entry_speed_sqr <= 2 * ACCEL_DEG_MIN2 * 0.05f * 1.0001f);
+}
+
+static void test_rates_limited_per_axis(void **state)
+{
+  queue(10, 10, 0, 0, 1);   // rapid diagonal: each axis at its max rate
+  plan_block_t *b = plan_peek_block(0);
+  float v = 1800.0f * sqrtf(2.0f);
+  assert_float_equal(b->nominal_speed_sqr, v * v, v * v * 1e-4f);
+  assert_float_equal(b->acceleration, ACCEL_DEG_MIN2 * sqrtf(2.0f), 10);
+  queue(20, 10, 0, 99999, 0);   // feed above max rate is clamped
+  assert_float_equal(plan_peek_block(1)->nominal_speed_sqr, 1800.0f * 1800.0f, 1);
+  queue(20, 10, 1, 0.01f, 0);   // feed below the minimum is raised
+  assert_float_equal(plan_peek_block(2)->nominal_speed_sqr, MINIMUM_FEED_RATE * MINIMUM_FEED_RATE, 1e-4);
+}
+
+static void test_empty_move(void **state)
+{
+  float t[N_AXIS] = {0.0001f, 0, 0};   // below half a step
+  plan_line_data_t pl = {.feed_rate = 100};
+  assert_int_equal(plan_buffer_line(t, &pl), PLAN_EMPTY_BLOCK);
+  assert_null(plan_get_current_block());
+}
+
+static uint64_t timed_move(const char *line)
+{
+  uint64_t t0 = host_cycles;
+  h_send(line);
+  return host_cycles - t0;
+}
+
+static void test_move_time_trapezoid(void **state)
+{
+  // 10 deg at 10 deg/s with 90 deg/s^2: 1.0 s cruise-equivalent + v/a.
+  double t = timed_move("G1 X10 F600") / (double)F_CPU;
+  assert_true(fabs(t - (1.0 + 10.0 / 90.0)) < 0.02);
+  // 0.5 deg at a rapid: a triangle, 2 sqrt(d/a).
+  t = timed_move("G0 X10.5") / (double)F_CPU;
+  assert_true(fabs(t - 2 * sqrt(0.5 / 90.0)) < 0.01);
+  assert_int_equal(host_motor_steps[0], 8400);
+}
+
+static void test_step_counts_random_moves(void **state)
+{
+  srand(1234);
+  float pos[3] = {0, 0, 0};
+  for (int i = 0; i < 60; i++) {
+    char line[96];
+    for (int a = 0; a < 3; a++) pos[a] = (rand() % 60001 - 30000) / 1000.0f;
+    int feed = 50 + rand() % 1700;
+    snprintf(line, sizeof(line), "G%d X%.3f Y%.3f Z%.3f F%d", rand() % 2, pos[0], pos[1], pos[2], feed);
+    h_send(line);
+    assert_string_equal(h_take(), "ok\r\n");
+    for (int a = 0; a < 3; a++) {
+      int32_t want = nuts_lround(pos[a] * 800.0f);
+      if (host_motor_steps[a] != want) fail_msg("move %d axis %d: %d steps, want %d", i, a, host_motor_steps[a], want);
+      assert_int_equal(sys_position[a], want);
+    }
+  }
+  // Never faster than the fastest axis allows (1800 deg/min x 800 steps/deg = 24 kHz).
+  assert_true(host_max_step_rate_hz <= 24000 * 1.01);
+}
+
+static void test_streamed_short_moves(void **state)
+{
+  // Many short moves, sent as fast as the buffers take them.
+  for (int i = 1; i <= 200; i++) {
+    char line[32];
+    snprintf(line, sizeof(line), "G1X%.3fF900\n", i * 0.037f);
+    h_send_bytes(line, strlen(line));
+  }
+  h_run(600000);
+  const char *out = h_take();
+  int oks = 0;
+  for (const char *p = out; (p = strstr(p, "ok\r\n")); p += 4) oks++;
+  assert_int_equal(oks, 200);
+  assert_int_equal(host_motor_steps[0], nuts_lround(200 * 0.037f * 800));
+}
+
+static void test_hold_decelerates_and_resume_completes(void **state)
+{
+  host_schedule_byte(board_millis() + 1000, '!');
+  h_send("G1 X30 F600");
+  assert_string_equal(h_take(), "ok\r\n");
+  h_run(2000);
+  assert_int_equal(sys.state, STATE_HOLD);
+  assert_true(sys.suspend & SUSPEND_HOLD_COMPLETE);
+  // At 1 s the stage is at ~9.44 deg; the segments already prepared (up to
+  // 5 x 10 ms = 0.5 deg) run out, then it decelerates over v^2 / 2a = 0.56 deg.
+  float x = host_motor_steps[0] / 800.0f;
+  assert_true(x > 9.9f && x < 10.6f);
+  host_advance_ms(500);
+  assert_int_equal(host_motor_steps[0], (int32_t)(x * 800.0f + 0.5f));   // holds still
+  h_send_bytes("~", 1);
+  h_run(600000);
+  assert_int_equal(sys.state, STATE_IDLE);
+  assert_int_equal(host_motor_steps[0], 24000);
+}
+
+static void test_reset_mid_move_keeps_position(void **state)
+{
+  host_schedule_byte(board_millis() + 700, 0x18);
+  h_send("G1 X30 Y-10 F900");
+  const char *out = h_take();
+  assert_non_null(strstr(out, "ALARM:3"));
+  assert_non_null(strstr(out, "[MSG:'$H'|'$X' to unlock]"));
+  assert_int_equal(sys.state, STATE_ALARM);
+  for (int a = 0; a < 3; a++) assert_int_equal(sys_position[a], host_motor_steps[a]);
+  assert_true(host_motor_steps[0] > 0 && host_motor_steps[0] < 24000);
+}
+
+static void test_backlash_not_in_position(void **state)
+{
+  h_send("$141=0.125");
+  h_send("G0 Y-1");   // first move negative: the last direction was positive -> take-up
+  assert_int_equal(host_motor_steps[1], -900);
+  assert_int_equal(sys_position[1], -800);
+  h_send("G0 Y1");   // reversal: 2 deg + 0.125 deg take-up
+  assert_int_equal(host_motor_steps[1], -900 + 1600 + 100);
+  assert_int_equal(sys_position[1], 800);
+  h_take();
+}
+
+static void test_idle_disables_drivers(void **state)
+{
+  h_send("G0 X1");
+  host_advance_ms(30);
+  protocol_poll();
+  assert_int_equal(host_stepper_enabled, 0);
+  h_send("$1=255");
+  h_send("G0 X2");
+  host_advance_ms(300);
+  protocol_poll();
+  assert_int_equal(host_stepper_enabled, 1);
+}
+
+int main(void)
+{
+  const struct CMUnitTest tests[] = {
+    cmocka_unit_test_setup(test_single_block_profile, setup),
+    cmocka_unit_test_setup(test_collinear_blocks_keep_speed, setup),
+    cmocka_unit_test_setup(test_reversal_stops, setup),
+    cmocka_unit_test_setup(test_corner_junction_deviation, setup),
+    cmocka_unit_test_setup(test_short_blocks_limited_by_acceleration, setup),
+    cmocka_unit_test_setup(test_rates_limited_per_axis, setup),
+    cmocka_unit_test_setup(test_empty_move, setup),
+    cmocka_unit_test_setup(test_move_time_trapezoid, setup),
+    cmocka_unit_test_setup(test_step_counts_random_moves, setup),
+    cmocka_unit_test_setup(test_streamed_short_moves, setup),
+    cmocka_unit_test_setup(test_hold_decelerates_and_resume_completes, setup),
+    cmocka_unit_test_setup(test_reset_mid_move_keeps_position, setup),
+    cmocka_unit_test_setup(test_backlash_not_in_position, setup),
+    cmocka_unit_test_setup(test_idle_disables_drivers, setup),
+  };
+  if (getenv("TEST_FILTER")) cmocka_set_test_filter(getenv("TEST_FILTER"));
+  return cmocka_run_group_tests_name("motion", tests, NULL, NULL);
+}
