@@ -132,6 +132,7 @@ def main(args):
     tmp = tempfile.mkdtemp(prefix="stage-bench-")
     st = stagelib.Stage(tmp, elf=elf, args=["--fast"])
     rows, worst_vec = [], {}
+    irq_off = (0, "")
     try:
         st.start()
         s = {}
@@ -154,6 +155,8 @@ def main(args):
                 r = run_move(st, rate, axes, args.steps, spd)
                 problems = verdict(r)
                 rows.append((label, rate, r, "; ".join(problems) or "ok", r["stats"]["axes"][0]))
+                if r["stats"]["max_irq_off_cycles"] > irq_off[0]:
+                    irq_off = (r["stats"]["max_irq_off_cycles"], r["stats"]["max_irq_off_pc"])
                 for v, d in r["stats"]["vectors"].items():
                     worst_vec[int(v)] = max(worst_vec.get(int(v), 0), d["max_cycles"])
                 st.ok("G90 G0 X0 Y0 Z0")
@@ -187,6 +190,11 @@ def main(args):
     out.append("| --- | ---: | ---: |")
     for v in sorted(worst_vec):
         out.append(f"| {v} {VECTOR_NAMES.get(v, '')} | {worst_vec[v]} | {worst_vec[v] * 1e6 / F_CPU:.1f} |")
+    out.append("")
+    out.append(f"Longest stretch with interrupts disabled (SREG I clear, interrupt entry included) "
+               f"while stepping: **{irq_off[0]} cycles** ({irq_off[0] * 1e6 / F_CPU:.1f} us), "
+               f"starting at byte address {irq_off[1]}; one character at 115200 baud is 1360 "
+               f"cycles and the UART holds two.")
     out.append("")
     out.append(f"Flash {flash} bytes (.text + .data), static RAM {ram} bytes (.data + .bss"
                f"{' + .noinit' if '.noinit' in sections else ''}), from `avr-size -A`.")

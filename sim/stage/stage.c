@@ -272,6 +272,8 @@ void stage_clear_stats(struct stage *s)
 		a->last_rise = a->last_fall = 0;
 		a->dir_pending = 0;
 	}
+	s->cli_max = 0;
+	s->cli_max_pc = 0;
 	for (int v = 0; v < STAGE_VECTORS; v++) {
 		uint64_t entered = s->vec[v].entered;
 		memset(&s->vec[v], 0, sizeof(s->vec[v]));
@@ -316,7 +318,8 @@ size_t stage_format_stats(const struct stage *s, char *buf, size_t len)
 		    (unsigned long long)a->min_dir_setup, (unsigned long long)a->dir_violations,
 		    (unsigned long long)a->limit_hits);
 	}
-	OUT("], \"vectors\": {");
+	OUT("], \"max_irq_off_cycles\": %llu, \"max_irq_off_pc\": \"0x%04x\", \"vectors\": {",
+	    (unsigned long long)s->cli_max, (unsigned)s->cli_max_pc);
 	int first = 1;
 	for (int v = 1; v < STAGE_VECTORS; v++) {
 		const struct stage_vector *sv = &s->vec[v];

@@ -56,6 +56,11 @@ struct stage {
 	struct stage_vector vec[STAGE_VECTORS];
 	avr_irq_t *limit_irq[STAGE_AXES];
 	int trap_warned;		/* bit i: warned about timer i */
+	/* longest stretch with interrupts disabled (SREG I clear), ISRs included */
+	uint64_t cli_since;		/* cycle I went clear, 0: I is set */
+	uint32_t cli_pc;		/* where it went clear */
+	uint64_t cli_max;
+	uint32_t cli_max_pc;
 };
 
 /* Hook the STEP/DIR/limit pins and the interrupt vectors of a freshly
@@ -70,6 +75,26 @@ void stage_sync_limits(struct stage *s);
  * compare value of 0 and its interrupt enabled: simavr 1.6 never fires such a
  * compare (silicon does, every tick). Main loop, cheap. */
 void stage_check_timer_traps(struct stage *s);
+
+/* Track how long interrupts stay disabled. Main loop, after every avr_run
+ * (one instruction), so it must stay this cheap. */
+static inline void stage_note_sreg(struct stage *s)
+{
+	avr_t *avr = s->avr;
+	if (!avr->sreg[S_I]) {
+		if (!s->cli_since) {
+			s->cli_since = avr->cycle ? avr->cycle : 1;
+			s->cli_pc = avr->pc;
+		}
+	} else if (s->cli_since) {
+		uint64_t d = avr->cycle - s->cli_since;
+		if (d > s->cli_max) {
+			s->cli_max = d;
+			s->cli_max_pc = s->cli_pc;
+		}
+		s->cli_since = 0;
+	}
+}
 
 /* 1 if the drivers are enabled now (PB0 an output driven low). */
 int stage_enabled(const struct stage *s);

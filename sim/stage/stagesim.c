@@ -452,6 +452,7 @@ static int sim_run(struct sim *sim, char *err)
 	while (!stop_requested) {
 		for (int i = 0; i < SLICE; i++) {
 			int st = avr_run(avr);
+			stage_note_sreg(&sim->stage);
 			if (st == cpu_Done || st == cpu_Crashed) {
 				snprintf(err, ERR_LEN, "firmware %s at pc 0x%04x, cycle %llu",
 					 st == cpu_Done ? "stopped (sleep with interrupts off)" : "crashed",
