@@ -8,8 +8,10 @@ Resumable: a texture whose run finished (OUT/runs/<texture>/metrics.json) is
 not trained again, and `sim dataset` resumes its own folders.
 
 Profiles:
-- quick: the P1 pose split (1,600 / 597 / 100 grid poses + 100 off-grid) at
-  64 px input, MobileNetV2, 8 epochs: minutes per texture on a 2-core CPU.
+- quick: the P1 pose split (1,600 / 597 / 100 grid poses + 100 off-grid),
+  frames at half the reference camera's resolution (320 x 256, f 8 mm: the
+  same view, the sphere 133 px across), 64 px input, MobileNetV2, 8 epochs:
+  minutes per texture on a 2-core CPU.
 - p1: the paper's protocol, 128 px, MobileNetV2, 20 epochs (a GPU run).
 - smoke: a few frames, one epoch: checks the plumbing only.
 """
@@ -30,6 +32,7 @@ TEXTURES = ("Texture_1_bw", "Texture_1_color", "Texture_2_bw", "Texture_2_color"
 
 PROFILES = {
     "quick": {"size": 64, "arch": "mobilenet_v2", "epochs": 8, "batch_size": 32,
+              "camera": {"width": 320, "height": 256, "focal_mm": 8.0},
               "dataset": ["--train", "1600", "--val", "597", "--test", "100", "--offgrid-test", "100"]},
     "smoke": {"size": 32, "arch": "mobilenet_v3_small", "epochs": 1, "batch_size": 8,
               "dataset": ["--train", "32", "--val", "16", "--test", "8", "--offgrid-test", "8"]},
@@ -106,8 +109,13 @@ def run_study(args):
         ds = out / "datasets" / tex
         run = out / "runs" / tex
         t_tex = time.time()
+        cam = []
+        if prof.get("camera"):
+            cam_file = out / f"camera_{args.profile}.json"
+            cam_file.write_text(json.dumps(prof["camera"]) + "\n")
+            cam = ["--camera", str(cam_file)]
         _run([sys.executable, "-m", "sim.cli", "dataset", "--texture", str(tdir / f"{tex}.png"), "--out", str(ds),
-              "--seed", str(args.seed), "--quiet", *prof["dataset"]], out / "study.log")
+              "--seed", str(args.seed), "--quiet", *cam, *prof["dataset"]], out / "study.log")
         if (run / "metrics.json").exists() and (run / "run.json").exists():
             print(f"study: {tex}: finished run found in {run}, not retrained", flush=True)
         else:
@@ -140,7 +148,8 @@ def write_report(out, profile, prof, textures, results, timings, wall_s):
              f"Date {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; "
              f"{prof['arch']}, {prof['size']} px, {prof['epochs']} epochs, batch {prof['batch_size']}, AdamW 5e-4, "
              f"cosine, MAE + pseudo-Huber (delta 1 deg), no augmentation; dataset `sim dataset "
-             f"{' '.join(prof['dataset'])}`; device {timings[textures[0]].get('device', '?')}; "
+             f"{' '.join(prof['dataset'])}`" + (f", camera {json.dumps(prof['camera'])}" if prof.get("camera") else "")
+             + f"; device {timings[textures[0]].get('device', '?')}; "
              f"study wall time {wall_s / 60:.1f} min.", "",
              "All values in degrees; metrics as conventions.md defines them (the paper's).", "",
              "## Table 1: validation", "",
