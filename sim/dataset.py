@@ -207,9 +207,19 @@ def _render_task(task):
 
 
 def _pool_context():
-    # fork: workers start in milliseconds; the parent never opens an OpenGL context.
+    """Worker processes from a fresh fork server, never forked from this process.
+
+    Forking a process that already holds an OpenGL context (a caller that rendered
+    in-process first) deadlocks the child on the rasteriser's threads' locks; the
+    fork server is a clean process that has imported the renderer but opened no
+    context, so workers still start in milliseconds.
+    """
     methods = multiprocessing.get_all_start_methods()
-    return multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    if "forkserver" in methods:
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(["sim.dataset", "sim.render", "sim.randomize"])
+        return ctx
+    return multiprocessing.get_context("spawn")
 
 
 def build(cfg, out, *, workers=None, progress=True, command=None, log=print):

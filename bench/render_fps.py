@@ -1,0 +1,104 @@
+#!/usr/bin/env python3
+"""Frames per second of `sim dataset` for protocol P1 at the reference camera, 1 worker vs N workers.
+
+Renders the P1 pose plan (train 1600, val 597, test 100, off-grid test 100:
+2397 frames, written as PNG exactly as `sim dataset` writes them) once with
+one worker and once with every core, into temporary folders, and prints the
+frame rates and their ratio. The two runs happen in the same invocation, so
+their ratio holds even when the machine is shared and absolute numbers move.
+
+    .venv/bin/python bench/render_fps.py [--texture PNG] [--frames N] [--workers N] [--json FILE]
+
+Without --texture it uses a synthetic 2048 x 1024 stand-in in the paper's
+colours (black, white, green, blue stripes and patches).
+"""
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+
+import numpy as np
+from PIL import Image
+
+from sim.dataset import DatasetConfig, build
+
+
+def synthetic_texture(path, h=1024):
+    """A Texture_3_color-like stand-in: stripes and patches of black, white, green and blue."""
+    w = 2 * h
+    tex = np.full((h, w, 3), 255, np.uint8)
+    green, blue = (0, 125, 50), (30, 40, 200)
+    for k, row in enumerate(range(h // 16, h, h // 8)):
+        tex[row:row + h // 20] = (0, 0, 0) if k % 2 else green
+    for k, col in enumerate(range(0, w, w // 12)):
+        tex[:, col:col + w // 40] = blue if k % 3 == 0 else (0, 0, 0)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        r, c = rng.integers(0, h - 40), rng.integers(0, w - 120)
+        tex[r:r + 20, c:c + 120] = (0, 0, 0) if rng.random() < 0.5 else green
+    Image.fromarray(tex).save(path)
+    return path
+
+
+def cpu_model():
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def run(texture, frames, workers, tmp):
+    counts = {"train": 1600, "val": 597, "test": 100, "test_offgrid": 100}
+    # Keep the P1 proportions when only part of the plan is rendered.
+    scale = min(1.0, frames / sum(counts.values()))
+    counts = {k: int(round(v * scale)) for k, v in counts.items()}
+    out = os.path.join(tmp, f"w{workers}")
+    cfg = DatasetConfig(texture=texture, counts=counts)
+    t0 = time.perf_counter()
+    rec = build(cfg, out, workers=workers, progress=False, command="bench/render_fps.py", log=lambda *a: None)
+    wall = time.perf_counter() - t0
+    n = rec["last_run"]["rendered"]
+    shutil.rmtree(out)
+    return {"workers": workers, "frames": n, "seconds": round(wall, 3), "frames_per_s": round(n / wall, 1)}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--texture", help="texture PNG (default: a synthetic stand-in in the paper's colours)")
+    p.add_argument("--frames", type=int, default=2397, help="frames per run (default: 2397, the whole P1 plan)")
+    p.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)),
+                   help="workers of the parallel run (default: every core)")
+    p.add_argument("--json", help="also write the results to this JSON file")
+    args = p.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="render_fps-") as tmp:
+        texture = args.texture or synthetic_texture(os.path.join(tmp, "synthetic.png"))
+        one = run(texture, args.frames, 1, tmp)
+        many = run(texture, args.frames, args.workers, tmp)
+    result = {
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "nproc": os.cpu_count(), "cpu": cpu_model(),
+        "texture": os.path.basename(args.texture) if args.texture else "synthetic 2048x1024",
+        "camera": "reference 640x512",
+        "one_worker": one, "parallel": many,
+        "speedup": round(many["frames_per_s"] / one["frames_per_s"], 2),
+    }
+    print(f"render_fps: {one['frames']} frames, P1 plan, reference camera, nproc {result['nproc']} ({result['cpu']})")
+    print(f"  1 worker : {one['frames_per_s']:7.1f} frames/s ({one['seconds']} s)")
+    print(f"  {many['workers']} workers: {many['frames_per_s']:7.1f} frames/s ({many['seconds']} s)")
+    print(f"  speed-up : {result['speedup']:.2f}x")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump(result, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
