@@ -13,8 +13,7 @@ def stagesim_built():
 @pytest.fixture
 def firmware_elf():
     if not stagelib.FIRMWARE.exists():
-        pytest.skip(f"firmware ELF not built ({stagelib.FIRMWARE.relative_to(stagelib.ROOT)}; "
-                    "run `make firmware`)")
+        pytest.skip(f"firmware ELF not built ({stagelib.FIRMWARE}; run `make firmware`)")
     return stagelib.FIRMWARE
 
 

@@ -18,7 +18,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 STAGESIM = ROOT / "sim" / "stage" / "build" / "stagesim"
-FIRMWARE = ROOT / "firmware" / "build" / "spherepose-stage.elf"
+# STAGE_ELF points the tests (and the bench) at another build of the firmware
+FIRMWARE = Path(os.environ.get("STAGE_ELF", ROOT / "firmware" / "build" / "spherepose-stage.elf"))
 TESTFW = ROOT / "sim" / "stage" / "build" / "testfw.elf"
 
 BANNER_RE = re.compile(r"^Grbl \S+ \['\$' for help\]")
