@@ -62,12 +62,17 @@ def run(texture, frames, workers, tmp):
     counts = {k: int(round(v * scale)) for k, v in counts.items()}
     out = os.path.join(tmp, f"w{workers}")
     cfg = DatasetConfig(texture=texture, counts=counts)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rec = build(cfg, out, workers=workers, progress=False, command="bench/render_fps.py", log=lambda *a: None)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = rec["last_run"]["rendered"]
     shutil.rmtree(out)
-    return {"workers": workers, "frames": n, "seconds": round(wall, 3), "frames_per_s": round(n / wall, 1)}
+    res = {"workers": workers, "frames": n, "seconds": round(wall, 3), "frames_per_s": round(n / wall, 1)}
+    if workers == 1:
+        # One worker renders in this process: its CPU time per frame does not depend on
+        # what else the machine runs, and bounds what each core can do.
+        res["cpu_ms_per_frame"] = round(1000.0 * cpu / n, 2)
+    return res
 
 
 def main(argv=None):
@@ -78,6 +83,7 @@ def main(argv=None):
                    help="workers of the parallel run (default: every core)")
     p.add_argument("--json", help="also write the results to this JSON file")
     args = p.parse_args(argv)
+    load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="render_fps-") as tmp:
         texture = args.texture or synthetic_texture(os.path.join(tmp, "synthetic.png"))
         one = run(texture, args.frames, 1, tmp)
@@ -89,11 +95,14 @@ def main(argv=None):
         "camera": "reference 640x512",
         "one_worker": one, "parallel": many,
         "speedup": round(many["frames_per_s"] / one["frames_per_s"], 2),
+        "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],  # before, after
     }
     print(f"render_fps: {one['frames']} frames, P1 plan, reference camera, nproc {result['nproc']} ({result['cpu']})")
-    print(f"  1 worker : {one['frames_per_s']:7.1f} frames/s ({one['seconds']} s)")
+    print(f"  1 worker : {one['frames_per_s']:7.1f} frames/s ({one['seconds']} s; "
+          f"{one['cpu_ms_per_frame']} ms CPU per frame = {1000 / one['cpu_ms_per_frame']:.0f} frames/s per idle core)")
     print(f"  {many['workers']} workers: {many['frames_per_s']:7.1f} frames/s ({many['seconds']} s)")
-    print(f"  speed-up : {result['speedup']:.2f}x")
+    print(f"  speed-up : {result['speedup']:.2f}x (1-min load average before/after: "
+          f"{result['load_average_1min'][0]} / {result['load_average_1min'][1]})")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(result, f, indent=1)

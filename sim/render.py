@@ -240,6 +240,9 @@ class Renderer:
         self._actor.SetTexture(tex)
         prop = self._actor.GetProperty()
         prop.SetColor(1.0, 1.0, 1.0)
+        # The sphere is closed: back faces are never seen. Culling them before
+        # rasterisation halves the frame time under software OpenGL.
+        prop.BackfaceCullingOn()
         if lit:
             prop.SetAmbient(AMBIENT)
             prop.SetDiffuse(DIFFUSE)
