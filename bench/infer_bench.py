@@ -183,6 +183,17 @@ def idle_cpu(model, seconds, work):
         p.wait(timeout=30)
 
 
+def preprocess_state():
+    """Which training/preprocess.py the Python side ran: commit, and whether edited."""
+    try:
+        rev = subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%h", "--", "training/preprocess.py"],
+                             capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(ROOT), "diff", "--quiet", "--", "training/preprocess.py"]).returncode
+        return f"training/preprocess.py at {rev or '?'}" + (" with uncommitted edits" if dirty else "")
+    except OSError:
+        return "training/preprocess.py (git unavailable)"
+
+
 def machine():
     model = platform.processor() or "?"
     try:
@@ -238,6 +249,9 @@ def main(args):
                 pct(py["total"], 50) / pct(d["full"], 50))
 
     r_cpu, r_wall = ratios(c_cpu, py_cpu), ratios(c_wall, py_wall)
+    base_cpu = pct(c_cpu["ortrun"], 50) + pct(c_cpu["decode"], 50)
+    pp_cpu = pct(c_cpu["full_preprocess"], 50)
+    py_total_cpu = pct(py_cpu["total"], 50)
 
     def f(v):
         return "" if v is None else f"{v:.2f}"
@@ -255,6 +269,7 @@ def main(args):
         f"- Frames: {len(frames)} PNG files, 640 x 512, {frames_how}; {n} frames per pipeline, interleaved",
         f"- Versions: ONNX Runtime {ort.__version__} (C and Python), OpenCV 4.6 (C, Debian) and "
         f"{cv2.__version__} (Python, pip)",
+        f"- Python preprocessing: {preprocess_state()}",
         "",
         "Per-frame time in ms. CPU = process CPU time, the fair measure on this shared machine (other jobs",
         "were running; wall time mostly measures them); wall = monotonic clock.",
@@ -274,6 +289,22 @@ def main(args):
         "",
         f"Idle daemon (`poseinfer --serve`, after one request, over {args.idle_seconds:.0f} s): "
         f"**{idle:.2f} % CPU** (target ~0).",
+        "",
+        "## Reading",
+        "",
+        f"- The runtime adds nothing measurable beyond its steps (total / sum of steps = {r_cpu[1]:.2f} CPU).",
+        f"  What separates it from bare OrtRun + decode is the preprocessing itself, {pp_cpu:.2f} ms CPU: the "
+        "closing, the INTER_AREA resize and minEnclosingCircle dominate it (about 0.45, 0.4 and 0.2 ms when "
+        "timed one by one), the same OpenCV calls as training/preprocess.py, which the parity test holds "
+        "bit-identical. The 1.15x target would need the whole preprocessing to fit in "
+        f"{0.15 * base_cpu:.2f} ms; it is already confined to the sphere's bounding box and a SIMD mask.",
+        f"- Against Python the bound, even with free preprocessing, is Python total / (decode + infer) = "
+        f"{py_total_cpu / base_cpu:.2f} (CPU). The >= 2x target held against the first reference "
+        "implementation (mask in float64 over the whole frame: 4.6x CPU, measured the same way on the same "
+        "machine); training/preprocess.py now computes the mask in float32, channel by channel, which "
+        "made the Python side about 4x faster.",
+        "- Wall times on this machine mostly measure the other jobs sharing its two CPUs (load average "
+        "above); the CPU columns are the ones to compare.",
         "",
     ]
     out = Path(args.out)
