@@ -75,7 +75,7 @@ class Light:
 # A key light high on the camera's left, a weaker fill low on its right, and a
 # faint rim from behind-above; together with the ambient term every visible
 # point of the sphere keeps at least ~35 % of its texture brightness.
-KEY_LIGHT = Light(direction=(-0.45, 0.55, 1.0), intensity=0.75)
+KEY_LIGHT = Light(direction=(-0.45, 0.55, 1.0), intensity=0.65)
 FILL_LIGHT = Light(direction=(0.6, -0.25, 1.0), intensity=0.35)
 RIM_LIGHT = Light(direction=(0.0, 0.8, -0.6), intensity=0.2)
 DEFAULT_LIGHTS = (KEY_LIGHT, FILL_LIGHT, RIM_LIGHT)
