@@ -75,7 +75,7 @@ def find_marks(img):
     found = {}
     for k, blobs in pooled.items():
         wts, us, vs = (np.concatenate(parts) for parts in zip(*blobs))
-        assert np.ptp(us) < 20 and np.ptp(vs) < 20, f"mark {k} appears in several places"
+        assert np.ptp(us) < 40 and np.ptp(vs) < 40, f"mark {k} appears in several places"
         found[k] = (float(np.sum(wts * us) / wts.sum()), float(np.sum(wts * vs) / wts.sum()))
     return found
 
@@ -129,3 +129,28 @@ def test_pose_zero_sees_texture_centre_north_up(flat_renderer):
     up = found[POINTS.index((30, 0))]
     assert abs(centre[0] - 320) < 1 and abs(centre[1] - 256) < 1
     assert right[0] > centre[0] + 50 and up[1] < centre[1] - 50
+
+
+OTHER_CAMERA = {"width": 400, "height": 300, "focal_mm": 8.0, "pixel_mm": 0.006,
+                "distance_mm": 300.0, "sphere_diameter_mm": 50.0}  # sphere ~222 px across
+
+
+@pytest.mark.parametrize("pose", [(0, 0, 0), (12, -27, 6), (-20, 15, 25)])
+def test_other_camera_follows_the_same_model(pose):
+    """A camera from a file (other size, aspect, focal length, distance, sphere): marks land where
+    conventions.md's projection puts them, computed here from the pose and the camera."""
+    cam = camera_from_dict(OTHER_CAMERA, "test camera")
+    r = Renderer(mark_texture(POINTS), cam, lights=(), lit=False, background=(0, 0, 0))
+    found = find_marks(r.render(pose))
+    R = euler_to_matrix(*pose)
+    for k, (lat, lon) in enumerate(POINTS):
+        n = R @ body_direction(lat, lon)
+        margin = np.degrees(np.arcsin(n[2]) - np.arcsin(cam.radius_mm / cam.distance_mm))
+        if abs(margin) < CAP_DEG + 1.0:
+            continue  # a cap on the horizon is partly visible; not a clean check
+        if margin > 0:
+            uv = cam.project(cam.radius_mm * n)[0]
+            assert k in found, f"pose {pose} point {(lat, lon)}: visible but not found"
+            assert np.hypot(*np.subtract(found[k], uv)) <= TOLERANCE_PX, (pose, (lat, lon), found[k], uv)
+        else:
+            assert k not in found, f"pose {pose} point {(lat, lon)}: invisible but found"
