@@ -21,7 +21,6 @@ settings, the seed and i: any number of workers, any order, any interruption
 gives the same bytes.
 """
 import hashlib
-import itertools
 import json
 import multiprocessing
 import os

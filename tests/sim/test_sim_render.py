@@ -1,5 +1,4 @@
 """Renderer, camera files, randomisation and `sim render`."""
-import json
 import subprocess
 import sys
 
@@ -7,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sim.camera import Camera, CameraError, camera_from_dict, load_camera
+from sim.camera import Camera, CameraError, load_camera
 from sim.randomize import PRESET, Randomization, check, render_frame
 from sim.render import DEFAULT_BACKGROUND, Renderer, TextureError, load_texture
 from training.preprocess import find_sphere, params
