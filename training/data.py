@@ -4,8 +4,9 @@ A split folder holds `<x>_<y>_<z>.png` frames (sim.names is the only parser);
 other PNG names are an error that names the file, other file types are
 ignored. Steps 1-7 of sphere-crop-v1 (training/preprocess.py) run once per
 frame; the uint8 crops are cached in the folder as
-`.spherepose-cache-<key>.npz`, where key hashes the preprocessing parameters
-and every frame's name, size and mtime, so a change to either rebuilds it.
+`.spherepose-cache-<P>-<F>.npz`: P hashes the preprocessing parameters, F every
+frame's name, size and mtime, so a change to either rebuilds it; caches of
+other parameter sets are kept, and concurrent runs never clash.
 Step 8 (normalise) runs on batches in torch, with the same float32 arithmetic,
 after optional augmentation of the uint8 crops.
 """
@@ -42,11 +43,13 @@ def list_frames(root):
 
 
 def _cache_key(paths, params):
-    h = hashlib.sha1(json.dumps(params, sort_keys=True).encode())
+    """'<params hash>-<files hash>': one cache per parameter set, rebuilt when the frames change."""
+    hp = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:8]
+    h = hashlib.sha1()
     for p in paths:
         st = p.stat()
         h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
-    return h.hexdigest()[:16]
+    return f"{hp}-{h.hexdigest()[:12]}"
 
 
 def _crop_file(path, params):
@@ -96,11 +99,12 @@ def load_crops(root, params, cache=True, progress=True, workers=1):
         if pool is not None:
             pool.terminate()
     if cache:
-        for old in root.glob(f"{CACHE_PREFIX}*.npz"):
-            old.unlink(missing_ok=True)
-        tmp = root / f"{CACHE_PREFIX}{key}.tmp.npz"
+        for old in root.glob(f"{CACHE_PREFIX}{key.split('-')[0]}-*.npz"):
+            if old != cpath:  # stale: same parameters, other frames
+                old.unlink(missing_ok=True)
+        tmp = root / f".spherepose-tmp-{os.getpid()}.npz"
         np.savez(tmp, crops=crops)
-        os.replace(tmp, cpath)  # atomic: a killed run never leaves half a cache
+        os.replace(tmp, cpath)  # atomic: a killed or concurrent run never leaves half a cache
     return crops, labels, [p.name for p in paths]
 
 

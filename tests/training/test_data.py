@@ -42,8 +42,9 @@ def test_labels_cache_and_preprocessing_parity(tmp_path):
     assert torch.equal(PoseSet(tmp_path, p, progress=False).images, ds.images)
     _write(tmp_path, "0_0_0.png", 9)
     assert len(PoseSet(tmp_path, p, progress=False)) == 4
+    assert len(list(tmp_path.glob(CACHE_PREFIX + "*.npz"))) == 1  # the stale one is gone
     assert len(PoseSet(tmp_path, pp.params({"size": 48}), progress=False)) == 4
-    assert len(list(tmp_path.glob(CACHE_PREFIX + "*.npz"))) == 1
+    assert len(list(tmp_path.glob(CACHE_PREFIX + "*.npz"))) == 2  # one per parameter set
 
 
 @pytest.mark.parametrize("bad", ["pose.png", "1_2.png", "01_2_3.png", "1_2_3.1234.png", "+1_2_3.png"])
