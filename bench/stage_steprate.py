@@ -48,6 +48,8 @@ def get_args_parser():
     p.add_argument("--accel", type=float, default=3000.0,
                    help="acceleration $120-$122 in deg/s^2 (default: %(default)s)")
     p.add_argument("--markdown", help="also write the report to this file")
+    p.add_argument("--label", help="how the report names the firmware (default: the ELF path "
+                                   "inside the repository and the last commit of firmware/)")
     return p
 
 
@@ -61,6 +63,15 @@ def avr_size(elf):
     flash = sec.get(".text", 0) + sec.get(".data", 0)
     ram = sec.get(".data", 0) + sec.get(".bss", 0) + sec.get(".noinit", 0)
     return flash, ram, sec
+
+
+def firmware_label(args, elf):
+    if args.label:
+        return args.label
+    name = elf.relative_to(ROOT) if elf.is_relative_to(ROOT) else elf.name
+    commit = subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%h", "--", "firmware"],
+                            capture_output=True, text=True).stdout.strip()
+    return f"`{name}`" + (f", firmware/ at commit {commit}" if commit else "")
 
 
 def run_move(st, rate_hz, axes, steps, spd):
@@ -205,7 +216,7 @@ def main(args):
                 f"Machine: {platform.machine()}, {platform.system()} {platform.release()}, "
                 f"{subprocess.run(['nproc'], capture_output=True, text=True).stdout.strip()} cores  \n"
                 f"Date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC  \n"
-                f"Firmware: `{elf.relative_to(ROOT) if elf.is_relative_to(ROOT) else elf}`\n\n"
+                f"Firmware: {firmware_label(args, elf)}\n\n"
                 "Method: the firmware ELF runs in `stagesim --fast` (simavr, atmega328p at 16 MHz); "
                 "everything is measured in simulated cycles, so the host's speed does not enter. "
                 "For each rate the bench sets $110-$112 to that rate (+2 %), commands a "
