@@ -186,8 +186,10 @@ _WORKER = {}
 def _worker_init(cfg, single_thread_gl):
     """Create this process's Renderer once (one per worker process)."""
     if single_thread_gl:
-        # One rasteriser thread per worker: the workers already fill the cores.
+        # One rasteriser thread per worker, and no OpenCV thread pool: the workers already fill the cores.
         os.environ["LP_NUM_THREADS"] = "1"
+        import cv2
+        cv2.setNumThreads(1)
     from sim.render import Renderer, DEFAULT_LIGHTS
     _WORKER["renderer"] = Renderer(cfg.texture, cfg.camera, background=cfg.background,
                                    lights=cfg.lights if cfg.lights is not None else DEFAULT_LIGHTS)
