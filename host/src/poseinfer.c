@@ -513,6 +513,11 @@ int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err
     double t0 = pi_now_ms(), t1;
     pi_result tmp;
     if (!res) res = &tmp;
+    if (!ctx) {
+        memset(res, 0, sizeof *res);
+        pi_seterr(err, "pi_infer_frame: no model");
+        return -1;
+    }
     if (pi_preprocess_frame(ctx, frame, ctx->in_buf, (size_t)3 * ctx->pp.size * ctx->pp.size, res, err) < 0)
         return -1;
     t1 = pi_now_ms();

@@ -391,6 +391,14 @@ static int client_read(app *a, client *c)
     return 0;
 }
 
+/* Sleep up to ms, waking early on a signal. */
+static void nap(int ms)
+{
+    struct pollfd p = {sig_pipe[0], POLLIN, 0};
+    if (ms <= 0 || got_stop) return;
+    if (poll(&p, 1, ms) > 0) drain_sig_pipe();
+}
+
 int server_run(app *a, int lfd, const char *spec, char *err)
 {
     client cl[MAX_CLIENTS];
@@ -417,7 +425,15 @@ int server_run(app *a, int lfd, const char *spec, char *err)
                 drain_sig_pipe();
             } else if (idx[k] == -2) {
                 int fd = accept4(lfd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
-                if (fd < 0) continue;
+                if (fd < 0) {
+                    /* Out of descriptors: the pending connection stays and
+                     * poll would report it at once; do not spin on it. */
+                    if (errno == EMFILE || errno == ENFILE) {
+                        log_msg("accept: %s", strerror(errno));
+                        nap(100);
+                    }
+                    continue;
+                }
                 for (int i = 0; i < MAX_CLIENTS; i++) {
                     if (cl[i].fd >= 0) continue;
                     cl[i].fd = fd;
@@ -455,14 +471,6 @@ fail:
         if (cl[i].fd >= 0) client_close(a, &cl[i]);
     if (strncmp(spec, "unix:", 5) == 0) unlink(spec + 5);
     return -1;
-}
-
-/* Sleep up to ms, waking early on a signal. */
-static void nap(int ms)
-{
-    struct pollfd p = {sig_pipe[0], POLLIN, 0};
-    if (ms <= 0 || got_stop) return;
-    if (poll(&p, 1, ms) > 0) drain_sig_pipe();
 }
 
 int continuous_run(app *a, char *err)

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from conftest import sphere_frame
+from pihelpers import sphere_frame
 
 cv2 = pytest.importorskip("cv2")
 

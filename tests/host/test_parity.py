@@ -9,7 +9,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import ROOT, sphere_frame
+from pihelpers import ROOT, sphere_frame
 from training import preprocess
 
 cv2 = pytest.importorskip("cv2")

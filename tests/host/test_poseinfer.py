@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT, sphere_frame
+from pihelpers import ROOT, sphere_frame
 
 cv2 = pytest.importorskip("cv2")
 

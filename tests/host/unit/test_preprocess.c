@@ -232,6 +232,9 @@ static void library_argument_checks(void **state)
     assert_null(pi_metadata(NULL, "x"));
     assert_int_equal(pi_infer_file(NULL, "x.png", NULL, err), -1);
     assert_int_equal(pi_infer_memory(NULL, "x", 1, NULL, err), -1);
+    uint8_t px[3] = {0, 0, 0};
+    assert_int_equal(pi_infer_bgr(NULL, px, 1, 1, 0, NULL, err), -1);
+    assert_int_equal(pi_infer_camera(NULL, NULL, NULL, err), -1);
 }
 
 int main(void)
