@@ -24,6 +24,11 @@
 #define MINIMUM_JUNCTION_SPEED 0.0f   // deg/min
 #define MINIMUM_FEED_RATE 1.0f        // deg/min; slower feeds are raised to it
 #define MAX_LINE_NUMBER 10000000L     // GRBL's N limit
+// Long moves are split into blocks of at most this many degrees: a block's
+// remaining length is a float, and at the slowest feed a 10 ms segment must
+// still move it by more than its rounding step.
+#define MAX_BLOCK_DEG 720.0f
+#define MAX_TARGET_STEPS 1.0e9f       // |target| in steps; keeps step deltas inside int32 (error:33 beyond)
 #define N_COORDINATE_SYSTEM 6         // G54..G59
 #define N_DECIMAL_COORDVALUE 3        // positions printed with 3 decimals (deg)
 #define N_DECIMAL_SETTINGVALUE 3

@@ -280,6 +280,14 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
 
   if (axis_words && modal.motion == MOTION_MODE_NONE && axis_command == AXIS_COMMAND_MOTION_MODE)
     FAIL(STATUS_GCODE_AXIS_WORDS_EXIST);
+  // Targets must stay representable in steps (a rotation stage never gets near).
+  if (axis_command || jog) {
+    const float *chk = (non_modal == NON_MODAL_GO_HOME_0 || non_modal == NON_MODAL_GO_HOME_1) ? coord_data : xyz;
+    for (uint8_t i = 0; i < N_AXIS; i++) {
+      if (fabsf(xyz[i] * settings.steps_per_deg[i]) > MAX_TARGET_STEPS ||
+          fabsf(chk[i] * settings.steps_per_deg[i]) > MAX_TARGET_STEPS) FAIL(STATUS_GCODE_INVALID_TARGET);
+    }
+  }
   uint8_t has_n = value_words & bit(WORD_N);
   value_words &= ~(bit(WORD_N) | bit(WORD_F) | bit(WORD_X) | bit(WORD_Y) | bit(WORD_Z));
   if (value_words) FAIL(STATUS_GCODE_UNUSED_WORDS);
@@ -316,6 +324,11 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
     memcpy(gc_state.coord_system, block_coord_system, sizeof(block_coord_system));
   }
 
+  // EEPROM writes stall the main loop for ms: let queued motion finish first (as GRBL).
+  if (non_modal == NON_MODAL_SET_COORDINATE_DATA || non_modal == NON_MODAL_SET_HOME_0 || non_modal == NON_MODAL_SET_HOME_1) {
+    protocol_buffer_synchronize();
+    if (sys.abort) return STATUS_OK;
+  }
   switch (non_modal) {
     case NON_MODAL_SET_COORDINATE_DATA:
       settings_write_coord_data(coord_select, coord_data);

@@ -1,4 +1,5 @@
 // Motion commands: the entry points from G-code into the planner.
+#include <math.h>
 #include "motion.h"
 #include "config.h"
 #include "codes.h"
@@ -17,15 +18,25 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
     if (sys.abort || sys.state == STATE_ALARM) return;
   }
   if (sys.state == STATE_CHECK_MODE) return;
-  uint8_t need = plan_backlash_blocks_needed(target);
-  for (;;) {
-    protocol_execute_realtime();
-    if (sys.abort) return;
-    if (plan_get_block_buffer_available() < need) protocol_auto_cycle_start();
-    else break;
-    board_idle();
+  float start[N_AXIS];
+  float piece[N_AXIS];
+  float longest = 0.0f;
+  plan_get_position(start);
+  for (uint8_t i = 0; i < N_AXIS; i++) longest = max(longest, fabsf(target[i] - start[i]));
+  uint16_t n = (uint16_t)(longest / MAX_BLOCK_DEG) + 1;
+  for (uint16_t k = 1; k <= n; k++) {
+    for (uint8_t i = 0; i < N_AXIS; i++)
+      piece[i] = (k == n) ? target[i] : start[i] + (target[i] - start[i]) * k / n;
+    uint8_t need = plan_backlash_blocks_needed(piece);
+    for (;;) {
+      protocol_execute_realtime();
+      if (sys.abort) return;
+      if (plan_get_block_buffer_available() < need) protocol_auto_cycle_start();
+      else break;
+      board_idle();
+    }
+    plan_buffer_line(piece, pl_data);
   }
-  plan_buffer_line(target, pl_data);
 }
 
 void mc_dwell(float seconds)

@@ -55,6 +55,9 @@ uint8_t read_float(const char *line, uint8_t *char_counter, float *value)
 
 int32_t nuts_lround(float v)
 {
+  // Saturate instead of overflowing (callers keep targets far inside this).
+  if (v > 2.0e9f) return 2000000000L;
+  if (v < -2.0e9f) return -2000000000L;
   return (v >= 0) ? (int32_t)(v + 0.5f) : -(int32_t)(-v + 0.5f);
 }
 

@@ -145,6 +145,11 @@ void plan_sync_position(void)
   system_get_position(pl.position);
 }
 
+void plan_get_position(float *position)
+{
+  for (uint8_t i = 0; i < N_AXIS; i++) position[i] = pl.position[i] / settings.steps_per_deg[i];
+}
+
 void plan_cycle_reinitialize(void)
 {
   st_update_plan_block_parameters();

@@ -42,6 +42,7 @@ float plan_get_exec_block_exit_speed_sqr(void);     // prep: entry speed of the 
 uint8_t plan_check_full_buffer(void);               // main loop: 1 when no block is free
 uint8_t plan_get_block_buffer_available(void);      // main loop: free blocks
 void plan_sync_position(void);                      // main loop: planner position = machine position
+void plan_get_position(float *position);            // main loop: end of the last queued move (deg)
 void plan_cycle_reinitialize(void);                 // main loop: after a hold, replan from zero speed
 uint8_t plan_backlash_blocks_needed(const float *target); // main loop: free blocks a move to target needs (1 or 2)
 float plan_compute_profile_nominal_speed(const plan_block_t *block); // prep: deg/min

@@ -399,7 +399,9 @@ void st_prep_buffer(void)
       dt += time_var;
       if (dt < dt_max) {
         time_var = dt_max - dt;
-      } else if (mm_remaining > minimum_mm) {
+      } else if (mm_remaining > minimum_mm && dt_max < 50 * DT_SEGMENT) {
+        // Slower than one step per segment: extend it (bounded, so float
+        // rounding on a very long block can never spin here forever).
         dt_max += DT_SEGMENT;
         time_var = dt_max - dt;
       } else {
@@ -421,31 +423,34 @@ void st_prep_buffer(void)
     }
 
     dt += prep.dt_remainder;
-    float inv_rate = dt / (last_n_steps_remaining - step_dist_remaining);
-    uint32_t cycles = (uint32_t)ceilf((F_CPU * 60.0f) * inv_rate);
-    // Never shorter than a pulse plus its low time (and never 0: see config.h).
-    uint32_t min_cycles = (uint32_t)settings.pulse_microseconds * (F_CPU / 1000000UL) + STEP_PULSE_LATENCY_CYCLES + STEP_LOW_MIN_CYCLES;
-    if (min_cycles < F_CPU / MAX_STEP_RATE_HZ) min_cycles = F_CPU / MAX_STEP_RATE_HZ;
-    if (cycles < min_cycles) cycles = min_cycles;
-    if (cycles < (1UL << 16)) {
-      prep_segment->prescaler = 1;
-      prep_segment->cycles_per_tick = cycles;
-    } else if (cycles < (1UL << 19)) {
-      prep_segment->prescaler = 2;
-      prep_segment->cycles_per_tick = cycles >> 3;
-    } else {
-      prep_segment->prescaler = 3;
-      prep_segment->cycles_per_tick = (cycles < (1UL << 22)) ? (cycles >> 6) : 0xffff;
-    }
-
     if (prep_segment->n_step > 0) {
+      float inv_rate = dt / (last_n_steps_remaining - step_dist_remaining);  // min per step
+      float cycles_f = ceilf((F_CPU * 60.0f) * inv_rate);
+      if (!(cycles_f < 4.0e9f)) cycles_f = 4.0e9f;   // also catches inf/NaN
+      uint32_t cycles = (uint32_t)cycles_f;
+      // Never shorter than a pulse plus its low time (and never 0: see config.h).
+      uint32_t min_cycles = (uint32_t)settings.pulse_microseconds * (F_CPU / 1000000UL) + STEP_PULSE_LATENCY_CYCLES + STEP_LOW_MIN_CYCLES;
+      if (min_cycles < F_CPU / MAX_STEP_RATE_HZ) min_cycles = F_CPU / MAX_STEP_RATE_HZ;
+      if (cycles < min_cycles) cycles = min_cycles;
+      if (cycles < (1UL << 16)) {
+        prep_segment->prescaler = 1;
+        prep_segment->cycles_per_tick = cycles;
+      } else if (cycles < (1UL << 19)) {
+        prep_segment->prescaler = 2;
+        prep_segment->cycles_per_tick = cycles >> 3;
+      } else {
+        prep_segment->prescaler = 3;
+        prep_segment->cycles_per_tick = (cycles < (1UL << 22)) ? (cycles >> 6) : 0xffff;
+      }
       segment_buffer_head = segment_next_head;
       if (++segment_next_head == SEGMENT_BUFFER_SIZE) segment_next_head = 0;
+      prep.dt_remainder = (n_steps_remaining - step_dist_remaining) * inv_rate;
+    } else {
+      prep.dt_remainder = dt;   // no whole step yet: carry the time
     }
 
     pl_block->millimeters = mm_remaining;
     prep.steps_remaining = n_steps_remaining;
-    prep.dt_remainder = (n_steps_remaining - step_dist_remaining) * inv_rate;
 
     if (mm_remaining == prep.mm_complete) {
       if (mm_remaining > 0.0f) {

@@ -130,8 +130,11 @@ uint8_t system_execute_line(char *line)
       }
       break;
     default:
-      // Everything else requires idle or alarm.
+      // Everything else requires idle or alarm, and queued moves done first:
+      // they were planned with the settings they were sent under.
       if (sys.state & ~STATE_ALARM) return STATUS_IDLE_ERROR;
+      protocol_buffer_synchronize();
+      if (sys.abort) return STATUS_OK;
       switch (line[1]) {
         case '#':
           if (line[2] != 0) return STATUS_INVALID_STATEMENT;

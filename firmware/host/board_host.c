@@ -16,6 +16,7 @@ uint8_t host_stepper_enabled;
 uint64_t host_cycles;
 uint32_t host_max_step_rate_hz;
 uint8_t host_watchdog_reset;
+void (*host_idle_hook)(void);
 
 static char out_buf[1 << 16];
 static size_t out_len;
@@ -158,6 +159,7 @@ void board_idle(void)
   if (in_idle) return;   // the ISRs run from here; they never wait
   in_idle = 1;
   host_tick();
+  if (host_idle_hook) host_idle_hook();
   in_idle = 0;
 }
 
