@@ -209,3 +209,38 @@ def test_idle_cpu(daemon, models, tmp_path):
     used = cpu() - c0
     assert used / (time.time() - t0) < 0.02, f"idle daemon used {used:.3f} s of CPU in 2 s"
     assert d.stop() == 0
+
+
+def test_real_virtual_camera(run, models, tmp_path, timeout_scale):
+    """The unix: client against the project's own frame server (`sim vcam`)."""
+    from pihelpers import ROOT
+    import numpy as np
+    sim = ROOT / ".venv" / "bin" / "sim"
+    if not sim.exists():
+        pytest.skip("sim not installed")
+    tex = tmp_path / "tex.png"
+    rng = np.random.default_rng(3)
+    t = np.full((256, 512, 3), 230, np.uint8)
+    for _ in range(60):
+        cv2.circle(t, (int(rng.integers(0, 512)), int(rng.integers(0, 256))), int(rng.integers(5, 30)),
+                   tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
+    cv2.imwrite(str(tex), t)
+    sock = tmp_path / "vcam.sock"
+    p = subprocess.Popen([str(sim), "vcam", "--texture", str(tex), "--socket", str(sock), "--pose", "10", "-5", "20"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        if not line.startswith("VCAM"):
+            pytest.skip(f"sim vcam did not start: {line} {p.stderr.read()[-300:] if p.poll() is not None else ''}")
+        r = run("--model", models["good"], "--camera", f"unix:{sock}", "--continuous", "--count", "2",
+                "--timings", "--timeout-ms", str(int(30000 * timeout_scale)))
+        assert r.rc == 0, r.stderr
+        assert len(r.lines) == 2
+        for l in r.lines:
+            assert "error" not in l, l
+            # the reference camera: sphere of 40 mm at 250 mm, about 267 px across, centred
+            assert abs(l["cx"] - 320) < 3 and abs(l["cy"] - 256) < 3 and abs(l["r"] - 133) < 6, l
+        assert r.lines[0]["x"] == r.lines[1]["x"]  # same pose, same frame, same answer
+    finally:
+        p.terminate()
+        p.wait(timeout=30)
