@@ -189,7 +189,7 @@ class FrameServer:
             srv.bind(self.path)
         except OSError as e:
             srv.close()
-            raise ValueError(f"--socket {self.path}: cannot bind: {e.strerror}") from None
+            raise ValueError(f"--socket {self.path}: cannot bind: {e.strerror or e}") from None
         srv.listen(8)
         return srv
 
@@ -212,13 +212,14 @@ class FrameServer:
     def serve_forever(self):
         """Serve until SIGTERM or SIGINT; returns 0 (the exit status)."""
         from sim.render import Renderer
-        self._renderer = Renderer(self.texture, self.camera, lights=self.lights, background=self.background)
         old = {s: signal.signal(s, _raise_stop) for s in (signal.SIGTERM, signal.SIGINT)}
         srv = None
         sel = selectors.DefaultSelector()
         clients = {}
         try:
-            srv = self._bind()
+            srv = self._bind()  # first: a bad --socket fails before the renderer's set-up
+            self._renderer = Renderer(self.texture, self.camera, lights=self.lights,
+                                      background=self.background)
             sel.register(srv, selectors.EVENT_READ)
             print(f"VCAM {self.path}", flush=True)
             self.log(f"serving {self.camera.width}x{self.camera.height} frames of {self.source.describe()}")
