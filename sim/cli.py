@@ -64,10 +64,6 @@ def _pair(text):
     return (lo, hi)
 
 
-def _range(text):
-    return _pair(text)
-
-
 def _count(text):
     try:
         v = int(text)
@@ -234,10 +230,10 @@ def get_args_parser():
     p.add_argument("--out", required=True, metavar="DIR", help="dataset folder (required)")
     p.add_argument("--seed", type=int, default=0, help="seed of the pose draw and the randomisation")
     p.add_argument("--step", type=_finite, default=3.0, metavar="DEG", help="grid step in degrees")
-    p.add_argument("--range", type=_range, default=(-30.0, 30.0), metavar="LO,HI",
+    p.add_argument("--range", type=_pair, default=(-30.0, 30.0), metavar="LO,HI",
                    help="range of every axis in degrees")
     for a in "xyz":
-        p.add_argument(f"--range-{a}", type=_range, metavar="LO,HI", help=f"range of {a}, overriding --range")
+        p.add_argument(f"--range-{a}", type=_pair, metavar="LO,HI", help=f"range of {a}, overriding --range")
     p.add_argument("--train", type=_count, default=1600, metavar="N", help="poses in train/")
     p.add_argument("--val", type=_count, default=597, metavar="N", help="poses in val/")
     p.add_argument("--test", type=_count, default=100, metavar="N", help="poses in test/")
