@@ -23,7 +23,7 @@
 static avr_t *avr;
 static long steps[3];
 static uint8_t dir[3];
-static avr_cycle_count_t rise[3], last_rise[3];
+static avr_cycle_count_t rise[3], last_rise[3], first_rise[3];
 static avr_cycle_count_t min_pulse = (avr_cycle_count_t)-1, min_interval[3];
 static unsigned char sendq[65536];
 static size_t sq_head, sq_tail;
@@ -50,6 +50,7 @@ static void pin_change(struct avr_irq_t *irq, uint32_t v, void *p)
   int a = pin - 2;
   if (v) {
     rise[a] = avr->cycle;
+    if (!first_rise[a]) first_rise[a] = avr->cycle;
     steps[a] += dir[a] ? -1 : 1;
     if (last_rise[a]) {
       avr_cycle_count_t d = avr->cycle - last_rise[a];
@@ -163,6 +164,10 @@ int main(int argc, char **argv)
   }
   printf("\nSTEPS %ld %ld %ld\n", steps[0], steps[1], steps[2]);
   printf("SHORT_PULSES %ld\n", n_short);
+  for (int a = 0; a < 3; a++)
+    if (steps[a] && last_rise[a] > first_rise[a])
+      printf("AXIS %d: %ld steps from cycle %llu to %llu, mean %.0f Hz\n", a, labs(steps[a]), (unsigned long long)first_rise[a],
+             (unsigned long long)last_rise[a], (labs(steps[a]) - 1) * (double)F / (double)(last_rise[a] - first_rise[a]));
   if (isr_entry) printf("ISR_CYCLES max %llu mean %.1f n %llu\n", isr_max, isr_n ? (double)isr_sum / isr_n : 0.0, isr_n);
   printf("MIN_PULSE_CYCLES %llu MIN_INTERVAL %llu %llu %llu CYCLE %llu\n", (unsigned long long)min_pulse,
          (unsigned long long)min_interval[0], (unsigned long long)min_interval[1],
