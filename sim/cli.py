@@ -201,7 +201,8 @@ def cmd_vcam(args):
         source = vcam.PoseFileSource(args.pose_file)
     server = vcam.FrameServer(args.socket, texture=args.texture, camera=camera,
                               lights=_load_lights(args.lights) or DEFAULT_LIGHTS, background=args.background,
-                              source=source, randomization=_randomization(args), seed=args.seed)
+                              source=source, randomization=_randomization(args), seed=args.seed,
+                              frame_log=args.frame_log)
     return server.serve_forever()
 
 
@@ -261,6 +262,9 @@ def get_args_parser():
     p.add_argument("--pose-file", metavar="FILE",
                    help="serve the poses of a text file, one 'x y z' line each, in turn (cycling)")
     p.add_argument("--seed", type=int, default=0, help="seed of the per-frame randomisation")
+    p.add_argument("--frame-log", metavar="FILE",
+                   help="append one JSON line per frame served: its index and the angles it shows "
+                        "(how a test knows where the stage really was)")
     _add_randomization_args(p)
     return parser
 

@@ -152,7 +152,7 @@ class FrameServer:
     """Serves rendered frames of `source`'s poses on Unix socket `path`."""
 
     def __init__(self, path, *, texture, camera, lights, background, source,
-                 randomization=Randomization(), seed=0, log=None):
+                 randomization=Randomization(), seed=0, log=None, frame_log=None):
         self.path = path
         self.texture = texture
         self.camera = camera
@@ -164,13 +164,18 @@ class FrameServer:
         self.frames = 0
         self.log = log or (lambda msg: print(f"sim vcam: {msg}", file=sys.stderr, flush=True))
         self._renderer = None
+        self._frame_log = open(frame_log, "a", buffering=1) if frame_log else None
 
     def frame(self):
         """PNG bytes of the next frame (SourceError if the pose source fails)."""
         pose = self.source.pose()
         rng = np.random.default_rng([self.seed, self.frames])
+        png = encode_png(render_frame(self._renderer, pose, self.randomization, rng))
+        if self._frame_log:
+            x, y, z = pose
+            self._frame_log.write(json.dumps({"frame": self.frames, "x": x, "y": y, "z": z}) + "\n")
         self.frames += 1
-        return encode_png(render_frame(self._renderer, pose, self.randomization, rng))
+        return png
 
     def _bind(self):
         if os.path.exists(self.path):
@@ -262,6 +267,8 @@ class FrameServer:
             sel.close()
             if hasattr(self.source, "close"):
                 self.source.close()
+            if self._frame_log:
+                self._frame_log.close()
             for s, h in old.items():
                 signal.signal(s, h)
         return 0

@@ -137,8 +137,9 @@ def test_vcam_pose_file_and_sigint(short_dir, texture_png, small_camera_json):
     with open(poses, "w") as f:
         f.write("# x y z\n0 0 0\n10 20 -5\n")
     vsock = os.path.join(short_dir, "cam")
+    log = os.path.join(short_dir, "frames.jsonl")
     proc, _ = start_vcam(["--texture", texture_png, "--camera", small_camera_json,
-                          "--pose-file", poses, "--socket", vsock, "--noise", "3"])
+                          "--pose-file", poses, "--socket", vsock, "--noise", "3", "--frame-log", log])
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as c:
             c.settimeout(20)
@@ -152,6 +153,11 @@ def test_vcam_pose_file_and_sigint(short_dir, texture_png, small_camera_json):
         proc.send_signal(signal.SIGINT)
         rc = proc.wait(timeout=20)
     assert rc == 0 and not os.path.exists(vsock)
+    # The frame log records the angles each served frame shows, in order.
+    with open(log) as f:
+        logged = [json.loads(line) for line in f]
+    assert [(d["frame"], d["x"], d["y"], d["z"]) for d in logged] == \
+        [(0, 0.0, 0.0, 0.0), (1, 10.0, 20.0, -5.0), (2, 0.0, 0.0, 0.0)]
 
 
 def test_vcam_needs_one_pose_source(texture_png):
