@@ -30,10 +30,32 @@ static size_t sq_head, sq_tail;
 static int uart_xoff;
 static long n_short;
 
+// Streaming mode ("<ms> stream FILE POLL_MS"): send FILE's lines with GRBL
+// character counting (at most 127 bytes unanswered), '?' every POLL_MS.
+static FILE *stream_f;
+static int stream_inflight[512], stream_head, stream_tail, stream_bytes;
+static long stream_sent, stream_ok, stream_err;
+static char outline[256];
+static int outlen;
+static int quiet;
+
 static void uart_out(struct avr_irq_t *irq, uint32_t v, void *p)
 {
-  putchar((int)v);
-  fflush(stdout);
+  if (!quiet) { putchar((int)v); fflush(stdout); }
+  if (v == '\n') {
+    outline[outlen] = 0;
+    if (!strncmp(outline, "ok", 2) || !strncmp(outline, "error:", 6)) {
+      if (outline[0] == 'e') { stream_err++; if (quiet) fprintf(stdout, "%s\n", outline); }
+      else stream_ok++;
+      if (stream_head != stream_tail) {
+        stream_bytes -= stream_inflight[stream_tail];
+        stream_tail = (stream_tail + 1) % 512;
+      }
+    }
+    outlen = 0;
+  } else if (v != '\r' && outlen < 255) {
+    outline[outlen++] = (char)v;
+  }
 }
 
 static void xon(struct avr_irq_t *irq, uint32_t v, void *p) { uart_xoff = 0; }
@@ -78,6 +100,38 @@ static void enqueue(unsigned char c)
 {
   sendq[sq_head] = c;
   sq_head = (sq_head + 1) % sizeof(sendq);
+}
+
+static char stream_next[128];
+static int stream_have;
+
+static void stream_pump(void)
+{
+  if (!stream_f) return;
+  for (;;) {
+    if (!stream_have) {
+      if (!fgets(stream_next, sizeof(stream_next), stream_f)) { fclose(stream_f); stream_f = NULL; return; }
+      stream_next[strcspn(stream_next, "\r\n")] = 0;
+      stream_have = 1;
+    }
+    int n = (int)strlen(stream_next) + 1;
+    if (stream_bytes + n > 127 || (stream_head + 1) % 512 == stream_tail) return;
+    for (char *c = stream_next; *c; c++) enqueue((unsigned char)*c);
+    enqueue('\n');
+    stream_inflight[stream_head] = n;
+    stream_head = (stream_head + 1) % 512;
+    stream_bytes += n;
+    stream_sent++;
+    stream_have = 0;
+  }
+}
+
+static avr_cycle_count_t poll_cycles;
+static avr_cycle_count_t poll_timer(struct avr_t *a, avr_cycle_count_t when, void *p)
+{
+  if (!stream_f && stream_head == stream_tail) return 0;
+  enqueue('?');
+  return when + poll_cycles;
 }
 
 int main(int argc, char **argv)
@@ -136,6 +190,7 @@ int main(int argc, char **argv)
     avr_cycle_count_t until = (avr_cycle_count_t)(ms * (F / 1000));
     while (avr->cycle < until && state != cpu_Done && state != cpu_Crashed) {
       state = avr_run(avr);
+      stream_pump();
       if (isr_entry) {
         if (avr->pc == isr_entry && !isr_start) isr_start = avr->cycle;
         else if (isr_start) {
@@ -154,6 +209,16 @@ int main(int argc, char **argv)
     }
     if (!strcmp(text, "end")) break;
     if (text[0] == '!') { enqueue((unsigned char)strtol(text + 1, NULL, 16)); continue; }
+    char sf[300];
+    int poll_ms;
+    if (sscanf(text, "stream %299s %d", sf, &poll_ms) == 2) {
+      stream_f = fopen(sf, "r");
+      if (!stream_f) { fprintf(stderr, "simrun: cannot open %s\n", sf); return 1; }
+      quiet = 1;
+      poll_cycles = (avr_cycle_count_t)poll_ms * (F / 1000);
+      if (poll_ms > 0) avr_cycle_timer_register(avr, poll_cycles, poll_timer, NULL);
+      continue;
+    }
     int ax, on;
     if (sscanf(text, "limit %d %d", &ax, &on) == 2) {
       avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 1 + ax), on ? 0 : 1);
@@ -162,6 +227,7 @@ int main(int argc, char **argv)
     for (char *c = text; *c; c++) enqueue((unsigned char)*c);
     enqueue('\n');
   }
+  if (quiet) printf("STREAM sent %ld ok %ld error %ld\n", stream_sent, stream_ok, stream_err);
   printf("\nSTEPS %ld %ld %ld\n", steps[0], steps[1], steps[2]);
   printf("SHORT_PULSES %ld\n", n_short);
   for (int a = 0; a < 3; a++)

@@ -2,6 +2,7 @@
 // the core built for the host.
 //
 //   > TEXT        send TEXT and a newline, run until quiet
+//   >> TEXT       send TEXT and a newline, run only until it is read (motion goes on)
 //   >! HEX ...    send raw bytes (real-time commands, control bytes), run until quiet
 //   >@ MS HEX     deliver a raw byte at MS simulated milliseconds from now (then use "= run")
 //   < TEXT        the next reply line is exactly TEXT
@@ -101,6 +102,14 @@ static void run_file(const char *path)
     else if (!strncmp(line, ">@ ", 3)) {
       char *e; unsigned long ms = strtoul(line + 3, &e, 10);
       host_schedule_byte(board_millis() + ms, (uint8_t)strtol(e, NULL, 16));
+    }
+    else if (!strncmp(line, ">> ", 3)) {
+      // Send without waiting for motion to finish: only until the line is read.
+      check_all_matched();
+      h_send_bytes(line + 3, strlen(line + 3));
+      h_send_bytes("\n", 1);
+      for (int i = 0; i < 1000 && serial_get_rx_buffer_available() < RX_BUFFER_SIZE - 1; i++) protocol_poll();
+      protocol_poll();
     }
     else if (!strncmp(line, "> ", 2) || !strcmp(line, ">")) { check_all_matched(); h_send(line[1] ? line + 2 : ""); }
     else if (!strncmp(line, "<~ ", 3)) {
