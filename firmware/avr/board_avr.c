@@ -29,9 +29,20 @@ void board_early_init(void)
   wdt_disable();
 }
 
+// Stack guard: two bytes just past static data; the stack grows down to them.
+extern uint8_t __bss_end;
+#define STACK_CANARY 0xa5
+
+uint8_t board_stack_ok(void)
+{
+  return (&__bss_end)[0] == STACK_CANARY && (&__bss_end)[1] == STACK_CANARY;
+}
+
 void board_init(void)
 {
   reset_flags = mcusr_mirror;
+  (&__bss_end)[0] = STACK_CANARY;
+  (&__bss_end)[1] = STACK_CANARY;
 
   STEP_DDR |= STEP_MASK;
   DIR_DDR |= DIR_MASK;

@@ -15,6 +15,7 @@ void board_uart_tx_kick(void);            // main loop: a byte is queued; enable
 uint32_t board_millis(void);              // any context: milliseconds since power-up (wraps)
 void board_idle(void);                    // main loop, inside every wait: kicks the watchdog
 uint8_t board_reset_cause_watchdog(void); // main, at boot: 1 when the last reset was the watchdog
+uint8_t board_stack_ok(void);             // main loop: 0 once the stack has grown into static data
 
 uint8_t board_eeprom_read(uint16_t addr);           // main loop: one EEPROM byte
 void board_eeprom_write(uint16_t addr, uint8_t v);  // main loop: one byte, waits for the write

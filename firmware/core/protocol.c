@@ -122,6 +122,7 @@ void protocol_poll(void)
     if (sys.abort) return;
   }
   protocol_auto_cycle_start();
+  if (!board_stack_ok() && !sys_fault) system_fault(FAULT_INTERNAL);
   protocol_execute_realtime();
   st_idle_poll();
   board_idle();

@@ -47,6 +47,8 @@ void board_irq_restore(uint8_t flag) { (void)flag; }
 void board_irq_enable(void) {}
 void board_irq_disable(void) {}
 uint8_t board_reset_cause_watchdog(void) { return host_watchdog_reset; }
+uint8_t host_stack_ok = 1;
+uint8_t board_stack_ok(void) { return host_stack_ok; }
 uint32_t board_millis(void) { return (uint32_t)(host_cycles / (F_CPU / 1000)); }
 
 void board_uart_tx_kick(void)

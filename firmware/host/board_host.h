@@ -17,6 +17,7 @@ extern uint8_t host_stepper_enabled;
 extern uint64_t host_cycles;            // simulated CPU cycles
 extern uint32_t host_max_step_rate_hz;  // highest step rate seen (from timer periods)
 extern uint8_t host_watchdog_reset;     // what board_reset_cause_watchdog reports
+extern uint8_t host_stack_ok;           // what board_stack_ok reports (0: simulate a stack overflow)
 extern void (*host_idle_hook)(void);    // tests: called on every board_idle (fuzzer time budget)
 
 void host_reset_board(void);                      // tests: power-on state (EEPROM kept)

@@ -12,6 +12,7 @@
 //   = boot        power-cycle, EEPROM kept;  = erase  blank EEPROM
 //   = steps X Y Z the motors moved exactly this many steps since power-on
 //   = corrupt ADDR  flip a bit in EEPROM;  = watchdog  the next boot follows a watchdog reset
+//   = stack 0|1   the stack guard reports an overflow (0) or not (1)
 //   = limit AXIS STEPS  the axis' switch closes at motor step STEPS and beyond
 //   # comment
 // Every reply line must be matched before the next '>' line.
@@ -127,6 +128,7 @@ static void run_file(const char *path)
     else if (!strcmp(line, "= boot")) { check_all_matched(); h_boot(); }
     else if (!strcmp(line, "= erase")) h_erase_eeprom();
     else if (!strcmp(line, "= watchdog")) host_watchdog_reset = 1;
+    else if (!strncmp(line, "= stack ", 8)) host_stack_ok = (uint8_t)atoi(line + 8);
     else if (!strncmp(line, "= corrupt ", 10)) host_eeprom[atoi(line + 10)] ^= 0x10;
     else if (!strncmp(line, "= limit ", 8)) {
       int ax; long st;
@@ -145,6 +147,7 @@ static void run_file(const char *path)
   }
   check_all_matched();
   host_watchdog_reset = 0;
+  host_stack_ok = 1;
   fclose(f);
 }
 
