@@ -12,32 +12,30 @@ total_pass=0
 total_fail=0
 failed_suites=()
 
-# count_cmocka LOG: sums cmocka's "[  PASSED  ] N test(s)." and "[  FAILED  ] N test(s)." lines.
-count_cmocka() {
-  local p f
-  p=$(grep -aE '^\[  PASSED  \] [0-9]+ test' "$1" | awk '{s += $4} END {print s + 0}')
-  f=$(grep -aE '^\[  FAILED  \] [0-9]+ test' "$1" | awk '{s += $4} END {print s + 0}')
-  echo "$p $f"
+# count_tests LOG: "PASSED FAILED" summed over cmocka's "[  PASSED  ] N test(s)." /
+# "[  FAILED  ] N test(s)" lines and pytest's closing lines ("3 passed, 1 failed in 4.2s"):
+# a part's `make test` may run both kinds.
+count_tests() {
+  local cp cf pp pf
+  cp=$(grep -aE '^\[  PASSED  \] [0-9]+ test' "$1" | awk '{s += $4} END {print s + 0}')
+  cf=$(grep -aE '^\[  FAILED  \] [0-9]+ test' "$1" | awk '{s += $4} END {print s + 0}')
+  read -r pp pf < <(grep -aE '[0-9]+ (passed|failed|errors?)(,| ).* in [0-9.]+s' "$1" | awk '
+    { for (i = 2; i <= NF; i++) {
+        w = $i; sub(/[,=]+$/, "", w)
+        if (w == "passed") p += $(i - 1)
+        if (w == "failed" || w == "error" || w == "errors") f += $(i - 1) } }
+    END { print p + 0, f + 0 }')
+  echo "$((cp + pp)) $((cf + pf))"
 }
 
-# count_pytest LOG: reads pytest's closing line ("3 passed, 1 failed, 2 skipped in 4.2s").
-count_pytest() {
-  local line p f e
-  line=$(grep -aE '[0-9]+ (passed|failed|error)' "$1" | tail -n 1)
-  p=$(echo "$line" | grep -oE '[0-9]+ passed' | awk '{print $1}')
-  f=$(echo "$line" | grep -oE '[0-9]+ failed' | awk '{print $1}')
-  e=$(echo "$line" | grep -oE '[0-9]+ errors?' | awk '{print $1}')
-  echo "${p:-0} $(( ${f:-0} + ${e:-0} ))"
-}
-
-# run_suite NAME KIND CMD...: run one suite, tee its log, add its counts.
+# run_suite NAME CMD...: run one suite, tee its log, add its counts.
 run_suite() {
-  local name=$1 kind=$2; shift 2
+  local name=$1; shift
   local log="$LOGS/$name.log" rc counts p f
   echo "=== $name: $*"
   "$@" 2>&1 | tee "$log"
   rc=${PIPESTATUS[0]}
-  counts=$(count_"$kind" "$log")
+  counts=$(count_tests "$log")
   p=${counts% *}; f=${counts#* }
   if [ "$rc" -ne 0 ] && [ "$f" -eq 0 ]; then
     f=1   # the suite itself broke (build error, crash): count it as one failure
@@ -47,10 +45,10 @@ run_suite() {
   echo "=== $name: $p passed, $f failed"
 }
 
-run_suite firmware cmocka make --no-print-directory -C firmware test
-run_suite host cmocka make --no-print-directory -C host test
-run_suite rig cmocka make --no-print-directory -C host/rig test
-run_suite python pytest "$PY" -m pytest -q -p no:cacheprovider tests
+run_suite firmware make --no-print-directory -C firmware test
+run_suite host make --no-print-directory -C host test
+run_suite rig make --no-print-directory -C host/rig test
+run_suite python "$PY" -m pytest -q -p no:cacheprovider tests
 
 echo
 if [ ${#failed_suites[@]} -gt 0 ]; then
