@@ -30,7 +30,6 @@ void report_grbl_settings(void);                 // main loop: "$N=value" lines
 uint8_t report_ngc_parameters(void);             // main loop: "$#" lines; status code
 void report_gcode_modes(void);                   // main loop: "[GC:...]"
 void report_build_info(const char *info);        // main loop: "$I" lines
-void report_echo_line_received(const char *line); // main loop: not used (GRBL debug option)
 void report_realtime_status(void);               // main loop: "<Idle|MPos:...>"
 
 #endif
