@@ -145,6 +145,37 @@ void st_idle_poll(void)
   }
 }
 
+// Step ISR, cold part: take the next segment (and block). Returns 0 when
+// the ISR should end here (no segment: last pulse ending, or stopped).
+// Kept out of line so the hot path of st_isr saves fewer registers.
+static uint8_t __attribute__((noinline)) st_load_segment(void)
+{
+  if (segment_buffer_head != segment_buffer_tail) {
+    st.exec_segment = &segment_buffer[segment_buffer_tail];
+    board_step_timer_set(st.exec_segment->cycles_per_tick, st.exec_segment->prescaler);
+    st.step_count = st.exec_segment->n_step;
+    if (st.exec_block_index != st.exec_segment->st_block_index || st.exec_block == NULL) {
+      st.exec_block_index = st.exec_segment->st_block_index;
+      st.exec_block = &st_block_buffer[st.exec_block_index];
+      st.counter[X_AXIS] = st.counter[Y_AXIS] = st.counter[Z_AXIS] = st.exec_block->step_event_count >> 1;
+      // Direction changes a whole step period before the next pulse.
+      board_dir_write(st.exec_block->direction_bits);
+    }
+    return 1;
+  }
+  if (st.step_outbits != step_port_invert_mask) {
+    // The last pulse just started: one more empty tick lets it end.
+    st.step_outbits = step_port_invert_mask;
+    board_irq_disable();
+    busy = 0;
+    return 0;
+  }
+  board_irq_disable();
+  st_go_idle();
+  system_set_exec_state_flag(EXEC_CYCLE_STOP);
+  return 0;
+}
+
 void st_isr(void)
 {
   if (busy) return;   // the previous tick is still running: keep its pulse
@@ -154,31 +185,7 @@ void st_isr(void)
   busy = 1;
   board_irq_enable(); // let the pulse-end compare and the UART in
 
-  if (st.exec_segment == NULL) {
-    if (segment_buffer_head != segment_buffer_tail) {
-      st.exec_segment = &segment_buffer[segment_buffer_tail];
-      board_step_timer_set(st.exec_segment->cycles_per_tick, st.exec_segment->prescaler);
-      st.step_count = st.exec_segment->n_step;
-      if (st.exec_block_index != st.exec_segment->st_block_index || st.exec_block == NULL) {
-        st.exec_block_index = st.exec_segment->st_block_index;
-        st.exec_block = &st_block_buffer[st.exec_block_index];
-        st.counter[X_AXIS] = st.counter[Y_AXIS] = st.counter[Z_AXIS] = st.exec_block->step_event_count >> 1;
-        // Direction changes a whole step period before the next pulse.
-        board_dir_write(st.exec_block->direction_bits);
-      }
-    } else if (st.step_outbits != step_port_invert_mask) {
-      // The last pulse just started: one more empty tick lets it end.
-      st.step_outbits = step_port_invert_mask;
-      board_irq_disable();
-      busy = 0;
-      return;
-    } else {
-      board_irq_disable();
-      st_go_idle();
-      system_set_exec_state_flag(EXEC_CYCLE_STOP);
-      return;
-    }
-  }
+  if (st.exec_segment == NULL && !st_load_segment()) return;
 
   // Bresenham, unrolled: this is the hot path (one pass per step tick).
   st_block_t *b = st.exec_block;
