@@ -144,6 +144,8 @@ void limits_go_home(uint8_t cycle_mask)
       sys_position[i] = -nuts_lround(settings.homing_pulloff * settings.steps_per_deg[i]);
   }
   board_irq_restore(s);
+  // The last move was the pull-off, away from the switch.
+  plan_set_last_direction(cycle_mask, ~settings.homing_dir_mask);
   plan_sync_position();
   gc_sync_position();
   limits_init();

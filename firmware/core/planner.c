@@ -38,9 +38,18 @@ static uint8_t plan_prev_block_index(uint8_t i)
   return (i == 0 ? BLOCK_BUFFER_SIZE : i) - 1;
 }
 
-void plan_reset(void)
+void plan_init(void)
 {
   memset(&pl, 0, sizeof(pl));
+  plan_reset();
+}
+
+void plan_reset(void)
+{
+  // The direction each motor last turned survives a reset (backlash state).
+  uint8_t last_dir = pl.last_dir_bits;
+  memset(&pl, 0, sizeof(pl));
+  pl.last_dir_bits = last_dir;
   block_buffer_tail = 0;
   block_buffer_head = 0;
   next_buffer_head = 1;
@@ -143,6 +152,11 @@ float plan_compute_profile_nominal_speed(const plan_block_t *block)
 void plan_sync_position(void)
 {
   system_get_position(pl.position);
+}
+
+void plan_set_last_direction(uint8_t axes, uint8_t negative_bits)
+{
+  pl.last_dir_bits = (pl.last_dir_bits & ~axes) | (negative_bits & axes);
 }
 
 void plan_get_position(float *position)

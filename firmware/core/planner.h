@@ -33,7 +33,8 @@ typedef struct {
   uint8_t condition;           // PL_COND_FLAG_*
 } plan_line_data_t;
 
-void plan_reset(void);                              // main loop: empty the buffer and state
+void plan_init(void);                               // main, at power-up: as plan_reset, and forget the backlash state
+void plan_reset(void);                              // main loop: empty the buffer and state (backlash state kept)
 uint8_t plan_buffer_line(const float *target, const plan_line_data_t *pl_data); // main loop: queue a move to target (deg); PLAN_OK or PLAN_EMPTY_BLOCK
 plan_block_t *plan_get_current_block(void);          // main loop / prep: block being executed, or NULL
 plan_block_t *plan_peek_block(uint8_t n);            // tests: the n-th queued block after the current one, or NULL
@@ -43,6 +44,7 @@ uint8_t plan_check_full_buffer(void);               // main loop: 1 when no bloc
 uint8_t plan_get_block_buffer_available(void);      // main loop: free blocks
 void plan_sync_position(void);                      // main loop: planner position = machine position
 void plan_get_position(float *position);            // main loop: end of the last queued move (deg)
+void plan_set_last_direction(uint8_t axes, uint8_t negative_bits); // main loop (homing): direction the axes last turned, for backlash
 void plan_cycle_reinitialize(void);                 // main loop: after a hold, replan from zero speed
 uint8_t plan_backlash_blocks_needed(const float *target); // main loop: free blocks a move to target needs (1 or 2)
 float plan_compute_profile_nominal_speed(const plan_block_t *block); // prep: deg/min

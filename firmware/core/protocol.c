@@ -29,6 +29,7 @@ static void protocol_exec_rt_system(void);
 void protocol_init(void)
 {
   memset(&sys, 0, sizeof(sys));
+  plan_init();
   sys.state = STATE_IDLE;
   if (board_reset_cause_watchdog()) sys_fault = FAULT_WATCHDOG;
   if (bit_istrue(settings.flags, BITFLAG_HOMING_ENABLE)) sys.state = STATE_ALARM;
