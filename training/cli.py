@@ -24,7 +24,7 @@ from . import preprocess as pp
 from .data import DatasetError, PoseSet
 from .engine import (SPLITS, CsvLog, Timer, evaluate, set_seed, train_one_epoch, write_split_report,
                      write_tables)
-from .export import ExportMismatch, export_onnx, read_metadata, run_onnx
+from .export import ExportMismatch, export_onnx, onnx_session, read_metadata, run_onnx
 from .losses import LOSSES
 from .models import ARCHS, HEADS, build
 
@@ -83,6 +83,11 @@ def get_args_parser():
     t.add_argument("--preprocess", default=None, help="JSON overrides of the sphere-crop-v1 parameters")
     t.add_argument("--seed", type=int, default=0, help="random seed")
     t.add_argument("--resume", default=None, help="checkpoint to resume from (its args are reused)")
+    t.add_argument("--init", default=None,
+                   help="start from this checkpoint's weights (fine-tuning: new optimiser and schedule; "
+                        "architecture, head and preprocessing must match)")
+    t.add_argument("--export-tol", type=float, default=1e-4,
+                   help="max |onnxruntime - PyTorch| in degrees at export")
     t.add_argument("--no-export", dest="export", action="store_false", help="skip ONNX export at the end")
     t.add_argument("--eval-splits", nargs="*", default=list(SPLITS), help="splits evaluated at the end")
     _add_common(t)
@@ -239,6 +244,14 @@ def train(args):
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_at)
     g = torch.Generator().manual_seed(args.seed)
     best_mae = float("inf")
+    if args.init and ck is None:
+        init = torch.load(args.init, map_location="cpu", weights_only=False)
+        for k in ("arch", "head", "preprocess"):
+            if init["config"].get(k) != config.get(k):
+                raise ValueError(f"{args.init}: {k} {init['config'].get(k)!r} does not match this run's "
+                                 f"{config.get(k)!r}")
+        model.load_state_dict(init["model"])
+        print(f"posetrain: weights from {args.init}", flush=True)
     if ck is not None:
         model.load_state_dict(ck["model"])
         optimizer.load_state_dict(ck["optimizer"])
@@ -285,8 +298,11 @@ def train(args):
     M.save_json(out / "run.json", info)
     if args.export:
         val_x = _check_images(val_set, params)
-        diff = export_onnx(model, ck["config"], out / "model.onnx", metrics_summary(results.get("val")), val_x)
+        diff = export_onnx(model, ck["config"], out / "model.onnx", metrics_summary(results.get("val")), val_x,
+                           getattr(args, "export_tol", 1e-4))
         print(f"posetrain: wrote {out / 'model.onnx'} (onnxruntime vs PyTorch max diff {diff:.2g} deg)")
+        info["export_max_diff_deg"] = diff
+        M.save_json(out / "run.json", info)
     return results
 
 
@@ -301,7 +317,13 @@ def ck_last_epoch(out):
 def describe_device(device):
     if device.type == "cuda":
         return torch.cuda.get_device_name(device)
-    return f"CPU {platform.processor() or platform.machine()}, {torch.get_num_threads()} threads"
+    name = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            name = next((l.split(":", 1)[1].strip() for l in f if l.startswith("model name")), name)
+    except OSError:
+        pass
+    return f"CPU {name} ({os.cpu_count()} cores), {torch.get_num_threads()} threads"
 
 
 def metrics_summary(m):
@@ -348,13 +370,14 @@ def evaluate_cmd(args):
         label = args.label or meta.get("spherepose.texture", Path(args.model).stem)
         from .data import prepare_batch
         results = {}
+        sess = onnx_session(args.model, threads=args.threads or None)
         for split in args.splits:
             ds = _load_split(args.data, split, params, args, False)
             if ds is None:
                 continue
             preds, rots = [], []
             for images, _ in ds.batches(64):
-                o = run_onnx(args.model, prepare_batch(images, params).numpy(), threads=args.threads or None)
+                o = run_onnx(sess, prepare_batch(images, params).numpy())
                 preds.append(o["euler_deg"])
                 if "rotmat" in o:
                     rots.append(o["rotmat"])
