@@ -145,6 +145,10 @@ void st_idle_poll(void)
   }
 }
 
+// Longest segment (min): far beyond one step at the lowest feed, only a
+// guard against a zero speed.
+#define MAX_SEGMENT_MIN 60.0f
+
 // Step ISR, cold part: take the next segment (and block). Returns 0 when
 // the ISR should end here (no segment: last pulse ending, or stopped).
 // Kept out of line so the hot path of st_isr saves fewer registers.
@@ -201,6 +205,14 @@ void st_isr(void)
   c = st.counter[Z_AXIS] + b->steps[Z_AXIS];
   if (c > ev) { bits |= bit(Z_AXIS); c -= ev; }
   st.counter[Z_AXIS] = c;
+  // A limit switch or a reset taken while interrupts were open may have
+  // stopped the stepper (st_go_idle): a step counted now would never reach
+  // the pins, so the reported position would run one step ahead.
+  board_irq_disable();
+  if (!running) {
+    busy = 0;
+    return;
+  }
   if (bits && b->count_position) {
     uint8_t neg = b->dir_sign_bits;
     if (bits & bit(X_AXIS)) { if (neg & bit(X_AXIS)) sys_position[X_AXIS]--; else sys_position[X_AXIS]++; }
@@ -219,7 +231,6 @@ void st_isr(void)
     if (t == SEGMENT_BUFFER_SIZE) t = 0;
     segment_buffer_tail = t;
   }
-  board_irq_disable();
   busy = 0;
 }
 
@@ -272,8 +283,10 @@ void st_prep_buffer(void)
         st_prep_block->direction_bits = pl_block->direction_bits ^ dir_port_invert_mask;
         st_prep_block->dir_sign_bits = pl_block->direction_bits;
         st_prep_block->count_position = !(pl_block->condition & PL_COND_FLAG_BACKLASH);
-        for (uint8_t i = 0; i < N_AXIS; i++) st_prep_block->steps[i] = pl_block->steps[i];
-        st_prep_block->step_event_count = pl_block->step_event_count;
+        // Bresenham on doubled counts (as grbl without AMASS): the counter starts
+        // at half an event, so a one-step block steps instead of rounding to none.
+        for (uint8_t i = 0; i < N_AXIS; i++) st_prep_block->steps[i] = pl_block->steps[i] << 1;
+        st_prep_block->step_event_count = pl_block->step_event_count << 1;
         prep.steps_remaining = (float)pl_block->step_event_count;
         prep.step_per_mm = prep.steps_remaining / pl_block->millimeters;
         prep.req_mm_increment = REQ_MM_INCREMENT_SCALAR / prep.step_per_mm;
@@ -406,11 +419,13 @@ void st_prep_buffer(void)
       dt += time_var;
       if (dt < dt_max) {
         time_var = dt_max - dt;
-      } else if (mm_remaining > minimum_mm && dt_max < 50 * DT_SEGMENT) {
-        // Slower than one step per segment: extend it (bounded, so float
-        // rounding on a very long block can never spin here forever).
-        dt_max += DT_SEGMENT;
-        time_var = dt_max - dt;
+      } else if (mm_remaining > minimum_mm && dt_max < MAX_SEGMENT_MIN) {
+        // Slower than one step per segment: extend it. The extension doubles:
+        // on a long block at a low feed one DT_SEGMENT of travel can be below
+        // float resolution of the distance left, and a fixed extension would
+        // then never progress (the caller would spin on empty segments).
+        time_var = dt_max;
+        dt_max += time_var;
       } else {
         break;
       }

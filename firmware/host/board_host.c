@@ -25,6 +25,11 @@ static uint8_t timer_on;
 static uint32_t timer_cycles;
 static uint8_t limits_irq_on;
 static uint8_t in_idle;
+// Interrupts as the chip has them: off inside an ISR until it opens them, and
+// a pin change seen meanwhile is taken when they open, not in the middle of
+// the ISR's pin write (which the chip could never do).
+static uint8_t irq_off;
+static uint8_t limit_change_pending;
 
 #define SCHED_MAX 64
 static struct { uint64_t at; uint8_t c; } sched[SCHED_MAX];
@@ -39,13 +44,23 @@ void host_reset_board(void)
   host_stepper_enabled = 0;
   limits_irq_on = 0;
   in_idle = 0;
+  irq_off = 0;
+  limit_change_pending = 0;
 }
 
 void board_init(void) { host_reset_board(); }
 uint8_t board_irq_save(void) { return 0; }
 void board_irq_restore(uint8_t flag) { (void)flag; }
-void board_irq_enable(void) {}
-void board_irq_disable(void) {}
+static void take_pending_limit_change(void)
+{
+  if (limit_change_pending && !irq_off) {
+    limit_change_pending = 0;
+    if (limits_irq_on) limits_pin_change_isr();
+  }
+}
+
+void board_irq_enable(void) { irq_off = 0; take_pending_limit_change(); }
+void board_irq_disable(void) { irq_off = 1; }
 uint8_t board_reset_cause_watchdog(void) { return host_watchdog_reset; }
 uint8_t host_stack_ok = 1;
 uint8_t board_stack_ok(void) { return host_stack_ok; }
@@ -95,7 +110,10 @@ void board_step_write(uint8_t axis_bits)
     if (rising & (1 << i)) host_motor_steps[i] += (dir_pins & (1 << i)) ? -1 : 1;
   }
   step_pins = axis_bits;
-  if (limits_irq_on && before != limit_levels()) limits_pin_change_isr();
+  if (limits_irq_on && before != limit_levels()) {
+    limit_change_pending = 1;
+    take_pending_limit_change();
+  }
 }
 
 void board_dir_write(uint8_t axis_bits) { dir_pins = axis_bits; }
@@ -146,7 +164,10 @@ static void host_tick(void)
   while (host_cycles < end) {
     if (timer_on) {
       host_cycles += timer_cycles;
+      irq_off = 1;   // ISR entry
       st_isr();
+      irq_off = 0;   // reti
+      take_pending_limit_change();
       // Pulse end (the compare-B interrupt on the chip).
       step_pins = step_idle;
     } else {
