@@ -207,7 +207,9 @@ void st_isr(void)
   st.counter[Z_AXIS] = c;
   // A limit switch or a reset taken while interrupts were open may have
   // stopped the stepper (st_go_idle): a step counted now would never reach
-  // the pins, so the reported position would run one step ahead.
+  // the pins, so the reported position would run one step ahead. Check and
+  // count with interrupts closed, then open them again at once: the pulse-end
+  // compare must not wait behind the next step tick, which outranks it.
   board_irq_disable();
   if (!running) {
     busy = 0;
@@ -224,6 +226,7 @@ void st_isr(void)
   st.pending_neg = b->dir_sign_bits;
   st.pending_count = b->count_position;
   st.step_outbits = bits ^ step_port_invert_mask;
+  board_irq_enable();
 
   if (--st.step_count == 0) {
     st.exec_segment = NULL;
@@ -231,6 +234,7 @@ void st_isr(void)
     if (t == SEGMENT_BUFFER_SIZE) t = 0;
     segment_buffer_tail = t;
   }
+  board_irq_disable();
   busy = 0;
 }
 
