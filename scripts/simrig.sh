@@ -25,9 +25,12 @@ VCAM=.venv/bin/sim
 for f in "$MODEL" "$ELF" "$STAGESIM" "$POSERIG" "$VCAM"; do
   [ -e "$f" ] || { echo "simrig: $f is missing (run 'make build' first)" >&2; exit 2; }
 done
-if [ ! -f "$TEXTURE" ]; then
-  .venv/bin/textures generate --out "$(dirname "$TEXTURE")" >&2
+# The default texture is generated (deterministically) when missing or older than its generator.
+if [ "$TEXTURE" = build/textures/Texture_3_color.png ] &&
+   { [ ! -f "$TEXTURE" ] || [ -n "$(find textures -name '*.py' -newer "$TEXTURE")" ]; }; then
+  .venv/bin/textures generate --out build/textures >&2
 fi
+[ -f "$TEXTURE" ] || { echo "simrig: texture $TEXTURE is missing" >&2; exit 2; }
 
 mkdir -p "$OUT"
 RUN=$(mktemp -d "${TMPDIR:-/tmp}/simrig.XXXXXX")
