@@ -23,7 +23,11 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
   float longest = 0.0f;
   plan_get_position(start);
   for (uint8_t i = 0; i < N_AXIS; i++) longest = max(longest, fabsf(target[i] - start[i]));
-  uint16_t n = (uint16_t)(longest / MAX_BLOCK_DEG) + 1;
+  // Pieces of at most MAX_BLOCK_DEG; a move so long that their count would
+  // overflow (tiny steps per degree, huge target) is cut into the most pieces
+  // a uint16_t counts, each longer: the segment prep copes with long blocks.
+  float pieces = longest / MAX_BLOCK_DEG;
+  uint16_t n = (pieces < 65534.0f) ? (uint16_t)pieces + 1 : 65535;
   for (uint16_t k = 1; k <= n; k++) {
     for (uint8_t i = 0; i < N_AXIS; i++)
       piece[i] = (k == n) ? target[i] : start[i] + (target[i] - start[i]) * k / n;
