@@ -87,15 +87,19 @@ def camera_from_dict(values, source="camera"):
     return cam
 
 
+def read_json(path, what, error=ValueError):
+    """Parsed JSON of file `path`; `error` names the file and says what it should be (`what`)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except OSError as e:
+        raise error(f"{path}: cannot read {what}: {e.strerror}") from None
+    except json.JSONDecodeError as e:
+        raise error(f"{path}: not valid JSON: {e}") from None
+
+
 def load_camera(path=None):
     """Camera from a JSON file (None: the reference camera). CameraError names the file and key."""
     if path is None:
         return Camera()
-    try:
-        with open(path, encoding="utf-8") as f:
-            values = json.load(f)
-    except OSError as e:
-        raise CameraError(f"{path}: cannot read camera file: {e.strerror}") from None
-    except json.JSONDecodeError as e:
-        raise CameraError(f"{path}: not valid JSON: {e}") from None
-    return camera_from_dict(values, source=str(path))
+    return camera_from_dict(read_json(path, "camera file", CameraError), source=str(path))

@@ -7,7 +7,6 @@
 See docs/sim.md.
 """
 import argparse
-import json
 import math
 import os
 import shlex
@@ -78,14 +77,8 @@ def _load_lights(path):
     from sim.render import lights_from_json
     if path is None:
         return None
-    try:
-        with open(path, encoding="utf-8") as f:
-            values = json.load(f)
-    except OSError as e:
-        raise UsageError(f"{path}: cannot read lights file: {e.strerror}") from None
-    except json.JSONDecodeError as e:
-        raise UsageError(f"{path}: not valid JSON: {e}") from None
-    return lights_from_json(values, source=str(path))
+    from sim.camera import read_json
+    return lights_from_json(read_json(path, "lights file", UsageError), source=str(path))
 
 
 def _add_scene_args(p):
