@@ -80,7 +80,8 @@ def find_sphere(frame, p=None):
             best, best_area = c, a
     if best is None or best_area < p["min_area_frac"] * h * w:
         raise NoSphere("no sphere found in frame")
-    (cx, cy), r = cv2.minEnclosingCircle(best)
+    # the hull has the same enclosing circle as the contour, from a tenth of the points
+    (cx, cy), r = cv2.minEnclosingCircle(cv2.convexHull(best))
     return cx, cy, r, bg
 
 

@@ -1,6 +1,7 @@
 // shim.cpp -- OpenCV behind a C interface (shim.h). Every entry point
 // catches everything: no C++ exception ever reaches C code.
 #include "shim.h"
+#include "kernels.h"
 
 #include <algorithm>
 #include <climits>
@@ -266,8 +267,8 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
         // 2. Foreground: max_c |I_c - bg_c| > threshold, i.e. any channel
         //    outside the closed interval of values within the threshold.
         //    The interval ends come from the same comparison, evaluated for
-        //    every 8-bit value; inRange then does the frame in SIMD.
-        cv::Scalar lo, hi;
+        //    every 8-bit value (l > u: every pixel is foreground).
+        int lo[3], hi[3];
         for (int c = 0; c < 3; c++) {
             int l = 256, u = -1;
             for (int v = 0; v < 256; v++) {
@@ -277,14 +278,10 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
                 }
             }
             lo[c] = l;
-            hi[c] = u; /* empty (l > u): every pixel is foreground */
+            hi[c] = u;
         }
-        cv::Mat mask;
-        cv::inRange(bgr, lo, hi, mask);
-        cv::bitwise_not(mask, mask);
-        const cv::Rect fg = cv::boundingRect(mask);
-        const int fx0 = fg.x, fy0 = fg.y, fx1 = fg.x + fg.width - 1, fy1 = fg.empty() ? -1 : fg.y + fg.height - 1;
-        if (fy1 < 0) {
+        int fx0, fy0, fx1, fy1;
+        if (!kern::fg_bbox(bgr.data, w, h, bgr.step[0], lo, hi, &fx0, &fy0, &fx1, &fy1)) {
             seterr(err, "preprocess", "no sphere found in frame");
             return -1;
         }
@@ -296,10 +293,12 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
         const int k = 2 * (int)std::floor(p->close_frac * mn / 2) + 1;
         const int bx0 = std::max(0, fx0 - k - 1), by0 = std::max(0, fy0 - k - 1);
         const int bx1 = std::min(w, fx1 + k + 2), by1 = std::min(h, fy1 + k + 2);
-        cv::Mat closed = mask(cv::Rect(bx0, by0, bx1 - bx0, by1 - by0)).clone();
+        cv::Mat closed(by1 - by0, bx1 - bx0, CV_8U);
+        kern::fg_mask(bgr.data, bgr.step[0], bx0, by0, closed.cols, closed.rows, lo, hi, closed.data);
         if (k > 1) {
             cv::Mat kernel = cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k));
-            cv::morphologyEx(closed, closed, cv::MORPH_CLOSE, kernel);
+            if (!kern::close_binary(closed.data, closed.cols, closed.rows, kernel.data, k))
+                cv::morphologyEx(closed, closed, cv::MORPH_CLOSE, kernel);
         }
 
         // 4. Largest external contour (first on ties).
@@ -316,10 +315,13 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
             return -1;
         }
 
-        // 5. Enclosing circle.
+        // 5. Enclosing circle, of the contour's convex hull: the same circle,
+        //    from a tenth of the points.
+        std::vector<cv::Point> hull;
+        cv::convexHull(contours[best], hull);
         cv::Point2f centre;
         float radius;
-        cv::minEnclosingCircle(contours[best], centre, radius);
+        cv::minEnclosingCircle(hull, centre, radius);
         const double cx = centre.x, cy = centre.y, r = radius;
 
         // 6. Square crop; outside the frame is bg. Equivalent to
@@ -347,8 +349,9 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
         }
 
         // 7. Resize.
-        cv::Mat small;
-        cv::resize(roi, small, cv::Size(S, S), 0, 0, cv::INTER_AREA);
+        cv::Mat small(S, S, CV_8UC3);
+        if (!kern::resize_area_c3(roi.data, (int)side, (int)side, roi.step[0], small.data, S, S, small.step[0]))
+            cv::resize(roi, small, cv::Size(S, S), 0, 0, cv::INTER_AREA);
 
         // 8. BGR -> RGB, /255, (v - mean) / std, CHW. Same float32 operations
         //    in the same order as the Python reference, through a table.
