@@ -329,39 +329,45 @@ bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstride, uint8_t 
     if (std::fabs(sx - ix) < DBL_EPSILON && std::fabs(sy - iy) < DBL_EPSILON) return false;
     if (std::fegetround() != FE_TONEAREST) return false;
 
-    // Pixels as 4 floats (B, G, R, unused) so that one weight scales a whole
-    // pixel in one vector multiply; per channel the operations and their
-    // order are those of the 3-channel sums.
+    // One weight scales a whole pixel in one 4-lane multiply: a source row
+    // is read 4 floats at a time from pixel x (lane 3, the next pixel's blue,
+    // goes into a sum nobody reads), the sums are kept as 4 floats per pixel.
+    // Two source rows go through together: two independent chains of adds
+    // keep the adder busy. Per channel the operations and their order are
+    // those of 3-channel sums.
     const std::vector<Weight> xt = area_weights(sw, dw, sx), yt = area_weights(sh, dh, sy);
-    const int n = 4 * dw;
-    std::vector<float> in((size_t)4 * sw, 0.0f), row((size_t)n), sum((size_t)n);
-    int row_s = -1;  // the source row `row` holds (a row shared by two output rows is summed once)
+    const int n = 4 * dw, ne = (int)xt.size();
+    std::vector<float> in((size_t)6 * sw + 2, 0.0f), rows((size_t)2 * n), sum((size_t)n);
+    float *const in0 = in.data(), *const in1 = in0 + 3 * sw + 1;
+    int base = -1;  // rows holds the horizontal sums of source rows base and base + 1
     size_t j = 0;
     for (int d = 0; d < dh; d++) {
         bool first = true;
         for (; j < yt.size() && yt[j].d == d; j++) {
-            if (yt[j].s != row_s) {
-                const uint8_t *p = src + (size_t)yt[j].s * sstride;
-                for (int x = 0; x < sw; x++) {
-                    in[4 * (size_t)x] = p[3 * x];
-                    in[4 * (size_t)x + 1] = p[3 * x + 1];
-                    in[4 * (size_t)x + 2] = p[3 * x + 2];
-                }
-                // one destination pixel at a time, its sum kept in registers
+            const int s_row = yt[j].s;
+            if (base < 0 || s_row < base || s_row > base + 1) {
+                const uint8_t *p0 = src + (size_t)s_row * sstride;
+                const uint8_t *p1 = s_row + 1 < sh ? p0 + sstride : p0;
+                for (int x = 0; x < 3 * sw; x++) in0[x] = p0[x];
+                for (int x = 0; x < 3 * sw; x++) in1[x] = p1[x];
+                float *r0 = rows.data(), *r1 = r0 + n;
                 for (int d4 = 0, e = 0; d4 < n; d4 += 4) {
-                    float acc[4] = {0.0f, 0.0f, 0.0f, 0.0f};
-                    for (; e < (int)xt.size() && 4 * xt[e].d == d4; e++) {
-                        const float *q = &in[4 * (size_t)xt[e].s];
+                    float a0[4] = {0.0f, 0.0f, 0.0f, 0.0f}, a1[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+                    for (; e < ne && 4 * xt[e].d == d4; e++) {
+                        const float *q0 = in0 + 3 * (size_t)xt[e].s, *q1 = in1 + 3 * (size_t)xt[e].s;
                         const float a = xt[e].a;
-                        for (int c = 0; c < 4; c++) acc[c] = acc[c] + q[c] * a;
+                        for (int c = 0; c < 4; c++) a0[c] = a0[c] + q0[c] * a;
+                        for (int c = 0; c < 4; c++) a1[c] = a1[c] + q1[c] * a;
                     }
-                    for (int c = 0; c < 4; c++) row[(size_t)d4 + c] = acc[c];
+                    for (int c = 0; c < 4; c++) r0[d4 + c] = a0[c];
+                    for (int c = 0; c < 4; c++) r1[d4 + c] = a1[c];
                 }
-                row_s = yt[j].s;
+                base = s_row;
             }
+            const float *row = rows.data() + (size_t)(s_row - base) * n;
             const float beta = yt[j].a;
             float *__restrict sm = sum.data();
-            const float *__restrict rw = row.data();
+            const float *__restrict rw = row;
             if (first) {
                 for (int i = 0; i < n; i++) sm[i] = beta * rw[i];
                 first = false;
