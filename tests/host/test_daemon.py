@@ -244,3 +244,36 @@ def test_real_virtual_camera(run, models, tmp_path, timeout_scale):
     finally:
         p.terminate()
         p.wait(timeout=30)
+
+
+GST_PIPELINE = ("gst:filesrc location={path} ! rawvideoparse width={w} height={h} format=bgr framerate=10/1 "
+                "! videoconvert ! video/x-raw,format=BGR ! appsink")
+
+
+def test_gstreamer_camera_gives_the_frames_file_mode_gives(run, models, tmp_path):
+    """The gst: source for real: raw BGR frames through filesrc, rawvideoparse and
+    appsink (GStreamer's base plugins) reach the model as the same pixels as the
+    PNG files of the same frames: the same poses, to the last digit."""
+    frames = [sphere_frame(seed=40), sphere_frame(seed=41, cx=260, cy=300), sphere_frame(seed=42, r=110)]
+    raw = tmp_path / "frames.bgr"
+    raw.write_bytes(b"".join(f.tobytes() for f in frames))
+    pngs = []
+    for i, f in enumerate(frames):
+        p = tmp_path / f"f{i}.png"
+        cv2.imwrite(str(p), f)
+        pngs.append(p)
+    ref = run("--model", models["good"], *pngs)
+    assert ref.rc == 0, ref.stderr
+    h, w = frames[0].shape[:2]
+    r = run("--model", models["good"], "--camera", GST_PIPELINE.format(path=raw, w=w, h=h), "--continuous",
+            "--count", "3")
+    assert r.rc == 0, r.stderr
+    assert [l["frame"] for l in r.lines] == [0, 1, 2]
+    for got, want in zip(r.lines, ref.lines):
+        assert "error" not in got, got
+        assert (got["x"], got["y"], got["z"]) == (want["x"], want["y"], want["z"])
+
+
+def test_gstreamer_pipeline_that_cannot_start(run, models):
+    r = run("--model", models["good"], "--camera", "gst:nosuchelement ! appsink", "--continuous", "--count", "1")
+    assert r.rc == 2 and "gst:" in r.stderr

@@ -275,3 +275,22 @@ def test_install_runs_from_its_prefix(models, frames, tmp_path):
     assert json.loads(out.stdout)["file"] == str(frames["good.png"])
     ldd = subprocess.run(["ldd", str(exe)], capture_output=True, text=True).stdout
     assert str(dest / "usr" / "bin" / ".." / "lib" / "poseinfer") in ldd, ldd
+
+
+def test_installed_unit_passes_systemd_verify(tmp_path):
+    """The installed unit as systemd itself reads it (`systemd-analyze verify`:
+    its keys, values and ExecStart binary), installed into a real prefix so
+    that the paths it names exist."""
+    if os.environ.get("POSEINFER") and Path(os.environ["POSEINFER"]).parent.name != "build":
+        pytest.skip("install is tested with the plain build")
+    sa = shutil.which("systemd-analyze")
+    if not sa:
+        pytest.skip("systemd-analyze is not installed")
+    prefix = tmp_path / "usr"
+    proc = subprocess.run(["make", "-s", "-C", str(ROOT / "host"), "install", f"PREFIX={prefix}"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    unit = prefix / "lib" / "systemd" / "system" / "poseinfer.service"
+    assert f"ExecStart={prefix}/bin/poseinfer --config /etc/poseinfer.conf" in unit.read_text()
+    v = subprocess.run([sa, "verify", str(unit)], capture_output=True, text=True, timeout=120)
+    assert v.returncode == 0 and v.stderr.strip() == "", v.stderr
