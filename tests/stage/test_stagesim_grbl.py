@@ -255,7 +255,7 @@ def test_settings_survive_restart_and_power_up_alarm(make_stage, firmware_elf, t
 
 
 def test_feed_hold_and_resume(grbl):
-    grbl.ok("G1 X20 F1200")
+    grbl.ok("G1 X20 F400")                            # 3 s: see test_reset_mid_move
     grbl.run_cycles(SECOND // 3)
     grbl.write(b"!")
     held = grbl.wait_state("Hold", timeout=10, poll=0.02)
@@ -281,7 +281,10 @@ def test_feed_hold_and_resume(grbl):
 
 
 def test_reset_mid_move(grbl):
-    grbl.ok("G1 X20 F1200")
+    # a 3 s move: stagesim paces simulated time to the wall clock, so a test
+    # process stalled on a busy machine must not see the move end before
+    # its reset arrives
+    grbl.ok("G1 X20 F400")
     grbl.run_cycles(SECOND // 3)
     assert grbl.status()["state"] == "Run"
     grbl.write(b"\x18")
