@@ -123,7 +123,7 @@ def test_firmware_refusal_and_reset(sim):
 
 def test_hold_then_reset_keeps_true_position(sim):
     s = sim()
-    stagectl(s, "send", "G1 F300 X10")     # ok comes at once; the move takes about 2 s
+    stagectl(s, "send", "G1 F150 X10")     # ok comes at once; the move takes about 4 s
     stagectl(s, "hold")
     deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
