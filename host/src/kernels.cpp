@@ -50,18 +50,12 @@ static inline uint8_t outside(uint8_t v, uint8_t lo, uint8_t hi)
 }
 
 // Any byte of p[0..N) outside its bounds? N is a compile-time 64 in the
-// hot path so that the loop vectorises without a remainder; the distances
-// below the low bound and above the high one (saturating subtractions, one
-// instruction each) are OR-ed, nonzero for any byte outside.
+// hot path so that the loop vectorises without a remainder.
 template <int N>
 static inline bool any_outside(const uint8_t *p, const uint8_t *lo, const uint8_t *hi)
 {
     uint8_t acc = 0;
-    for (int i = 0; i < N; i++) {
-        const uint8_t below = lo[i] > p[i] ? (uint8_t)(lo[i] - p[i]) : 0;
-        const uint8_t above = p[i] > hi[i] ? (uint8_t)(p[i] - hi[i]) : 0;
-        acc |= below | above;
-    }
+    for (int i = 0; i < N; i++) acc |= outside(p[i], lo[i], hi[i]);
     return acc != 0;
 }
 
