@@ -2,7 +2,7 @@
 
 Each angle is a decimal number of degrees: an optional '-', an integer part
 without leading zeros, and optionally '.' and 1 to 3 digits. No '+', exponent
-or spaces (../shared/spec/conventions.md, "Dataset file names").
+or spaces (docs/conventions.md, "Dataset file names").
 """
 import os
 import re

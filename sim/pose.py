@@ -1,4 +1,4 @@
-"""Pose conventions shared by every Python part (see ../shared/spec/conventions.md).
+"""Pose conventions shared by every Python part (see docs/conventions.md).
 
 A pose is (x, y, z) in degrees; the body-to-world rotation is
 R = Rz(z) @ Ry(y) @ Rx(x), p_W = R @ p_B.

@@ -40,7 +40,7 @@ def obj_text(name, texture_file, diameter_mm, n_lat, n_lon):
     verts, normals, tcoords, tris = uv_sphere(diameter_mm / 2.0, n_lat=n_lat, n_lon=n_lon)
     lines = [
         f"# spherepose printable sphere: diameter {diameter_mm:g} mm, units millimetres",
-        "# texture mapping: ../shared/spec/conventions.md (north pole = body +Y, longitude 0 = body +Z)",
+        "# texture mapping: docs/conventions.md (north pole = body +Y, longitude 0 = body +Z)",
         f"# {len(verts)} vertices, {len(tris)} triangles",
         f"mtllib {name}.mtl",
         f"o {name}",

@@ -1,4 +1,4 @@
-"""The paper's error metrics, exactly as ../shared/spec/conventions.md defines them.
+"""The paper's error metrics, exactly as docs/conventions.md defines them.
 
 e_a = |wrap(pred_a - true_a)| per sample and axis a;
 Err_a = mean e_a, Std_a = population std of e_a, RMSE_a = sqrt(mean e_a^2),

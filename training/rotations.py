@@ -1,6 +1,6 @@
 """Differentiable rotation conversions in torch, in the conventions' terms.
 
-R = Rz(z) Ry(y) Rx(x), degrees, body to world (../shared/spec/conventions.md);
+R = Rz(z) Ry(y) Rx(x), degrees, body to world (docs/conventions.md);
 sim/pose.py is the numpy reference these functions are tested against.
 The 6-D representation is Zhou et al. 2019: the first two columns of R,
 [R00, R10, R20, R01, R11, R21], mapped back to a rotation by Gram-Schmidt.

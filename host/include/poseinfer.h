@@ -3,7 +3,7 @@
  * Frame (file, memory, camera) -> preprocessing "sphere-crop-v1" (parameters
  * from the model's metadata, docs/interfaces.md) -> ONNX Runtime -> Euler
  * angles (x, y, z) in degrees, R = Rz(z) Ry(y) Rx(x), body to world
- * (shared/spec/conventions.md).
+ * (docs/conventions.md).
  *
  * Conventions of this API:
  * - Functions return 0 on success, -1 on failure; on failure they fill the

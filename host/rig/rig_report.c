@@ -166,7 +166,7 @@ int rig_write_summary_md(const char *path, const rig_run_info *info, const rig_s
     if (info->stopped) fprintf(f, "| stopped early | %s |\n", info->stopped);
     fprintf(f, "\n## Error analysis (degrees)\n\n"
                "Errors e = |wrap(estimate - commanded)| per axis; Err the mean, Std the population\n"
-               "standard deviation, RMSE = sqrt(mean(e^2)) (shared/spec/conventions.md).\n\n");
+               "standard deviation, RMSE = sqrt(mean(e^2)) (docs/conventions.md).\n\n");
     fprintf(f, "| Parameter | Mean Error | Std | RMSE | Maximum |\n| --- | ---: | ---: | ---: | ---: |\n");
     for (a = 0; a < 3; a++)
         fprintf(f, "| %s | %.3f | %.3f | %.3f | %.3f |\n", axis_name[a], s->axis[a].err,

@@ -1,5 +1,5 @@
 /* rig_stats.h -- pose errors and their statistics, exactly as
- * shared/spec/conventions.md defines them (the paper's metrics). */
+ * docs/conventions.md defines them (the paper's metrics). */
 #ifndef RIG_STATS_H
 #define RIG_STATS_H
 

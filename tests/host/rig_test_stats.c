@@ -38,7 +38,7 @@ static void test_errors_wrapped(void **state) {
     assert_float_equal(e[2], 0.75, 1e-9);
 }
 
-/* shared/spec/vectors.json, pose -> R. */
+/* tests/data/conventions_vectors.json, pose -> R. */
 static void test_matrix_vectors(void **state) {
     static const struct { double pose[3]; double R[3][3]; } v[] = {
         {{30, 0, 0}, {{1, 0, 0}, {0, 0.866025404, -0.5}, {0, 0.5, 0.866025404}}},

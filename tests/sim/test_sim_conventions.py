@@ -1,8 +1,8 @@
-"""The renderer follows conventions.md: marks at the (lat, lon) points of vectors.json land on their pixel_uv.
+"""The renderer follows docs/conventions.md: marks at the (lat, lon) points of the test vectors land on their pixel_uv.
 
 A test texture carries a small spherical cap of its own colour around each
-point of vectors.json; each case's pose is rendered flat-shaded at the
-reference camera; every visible cap must appear within 1.5 px of the
+point of tests/data/conventions_vectors.json; each case's pose is rendered
+flat-shaded at the reference camera; every visible cap must appear within 1.5 px of the
 point's pixel_uv, and no invisible one may appear at all.
 """
 import json
@@ -16,7 +16,7 @@ from sim.camera import camera_from_dict
 from sim.pose import body_direction, euler_to_matrix
 from sim.render import Renderer
 
-SPEC = os.path.join(os.path.dirname(__file__), "..", "..", "..", "shared", "spec")
+VECTORS_FILE = os.path.join(os.path.dirname(__file__), "..", "data", "conventions_vectors.json")
 
 CAP_DEG = 2.0  # angular radius of each mark on the sphere
 TOLERANCE_PX = 1.5
@@ -25,7 +25,7 @@ PALETTE = np.array([(255, 0, 0), (0, 255, 0), (0, 0, 255), (255, 255, 0), (255, 
 
 
 def load_vectors():
-    with open(os.path.join(SPEC, "vectors.json"), encoding="utf-8") as f:
+    with open(VECTORS_FILE, encoding="utf-8") as f:
         return json.load(f)
 
 
@@ -86,7 +86,7 @@ POINTS = mark_points(VECTORS)
 
 @pytest.fixture(scope="module")
 def flat_renderer():
-    camera = camera_from_dict(VECTORS["camera"], "vectors.json")
+    camera = camera_from_dict(VECTORS["camera"], VECTORS_FILE)
     return Renderer(mark_texture(POINTS), camera, lights=(), lit=False, background=(0, 0, 0))
 
 
@@ -113,12 +113,12 @@ def test_vectors(flat_renderer, case):
         k = POINTS.index((p["lat_deg"], p["lon_deg"]))
         label = f"pose {case['pose_deg']} point (lat {p['lat_deg']}, lon {p['lon_deg']})"
         if p["visible"]:
-            assert k in found, f"{label}: visible in vectors.json but not in the frame"
+            assert k in found, f"{label}: visible in the vectors but not in the frame"
             du, dv = np.subtract(found[k], p["pixel_uv"])
             assert np.hypot(du, dv) <= TOLERANCE_PX, \
                 f"{label}: found at {found[k]}, expected {p['pixel_uv']} (off by {np.hypot(du, dv):.2f} px)"
         else:
-            assert k not in found, f"{label}: invisible in vectors.json but appears at {found.get(k)}"
+            assert k not in found, f"{label}: invisible in the vectors but appears at {found.get(k)}"
 
 
 def test_pose_zero_sees_texture_centre_north_up(flat_renderer):

@@ -6,15 +6,13 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED = REPO / ".." / "shared"
+VECTORS = REPO / "tests" / "data" / "conventions_vectors.json"  # docs/conventions.md
 
 
 @pytest.fixture(scope="session")
 def vectors():
-    p = SHARED / "spec" / "vectors.json"
-    if not p.exists():
-        pytest.skip(f"shared spec not found beside the repository ({p})")
-    return json.loads(p.read_text())
+    # Part of the repository: a missing file is a failure (open raises), never a skip.
+    return json.loads(VECTORS.read_text())
 
 
 def disc_frame(seed=0, w=160, h=128, bg=(64, 64, 70)):
