@@ -4,11 +4,14 @@
 
 #include <ctype.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "poseinfer.h"
 
@@ -104,15 +107,36 @@ static char *trim(char *s)
     return s;
 }
 
-int config_load(pi_config *c, const char *path, char *err)
+/* Open a config file for reading: O_NONBLOCK and fstat first, so that a FIFO
+ * or a device given as the file is refused, not waited on. */
+static FILE *open_regular(const char *path, char *err)
 {
-    FILE *f = fopen(path, "r");
-    char line[1024], why[PI_ERR_LEN];
-    int lineno = 0;
+    struct stat sb;
+    FILE *f;
+    int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
+    if (fd < 0) {
+        snprintf(err, PI_ERR_LEN, "config(%s): %s", path, strerror(errno));
+        return NULL;
+    }
+    if (fstat(fd, &sb) < 0 || !S_ISREG(sb.st_mode)) {
+        snprintf(err, PI_ERR_LEN, "config(%s): not a regular file", path);
+        close(fd);
+        return NULL;
+    }
+    f = fdopen(fd, "r");
     if (!f) {
         snprintf(err, PI_ERR_LEN, "config(%s): %s", path, strerror(errno));
-        return -1;
+        close(fd);
     }
+    return f;
+}
+
+int config_load(pi_config *c, const char *path, char *err)
+{
+    FILE *f = open_regular(path, err);
+    char line[1024], why[PI_ERR_LEN];
+    int lineno = 0;
+    if (!f) return -1;
     while (fgets(line, sizeof line, f)) {
         char *k, *v, *eq;
         lineno++;

@@ -23,11 +23,31 @@ void pi_seterr(char *err, const char *fmt, ...) __attribute__((format(printf, 2,
  * file in messages. */
 int pi_parse_preprocess(const char *text, pp_params *p, char *err, const char *model);
 
-/* Read a whole regular file into *buf (grown as needed, capacity *cap). */
+/* Files over this many bytes are refused (default PI_DEFAULT_MAX_FILE_BYTES;
+ * the program sets it once at start from max_file_bytes). */
+#define PI_DEFAULT_MAX_FILE_BYTES (512L * 1024 * 1024)
+extern long pi_max_file_bytes;
+
+/* Read a whole regular file into *buf (grown as needed, capacity *cap). It is
+ * opened O_NONBLOCK and checked with fstat before any read, so a FIFO or a
+ * device is refused at once ("not a regular file (a FIFO)"), never waited on. */
 int pi_read_file(const char *path, unsigned char **buf, size_t *cap, size_t *len, char *err);
+
+/* The same from an open descriptor (closed in every case); path names it in
+ * messages. */
+int pi_read_fd(int fd, const char *path, unsigned char **buf, size_t *cap, size_t *len, char *err);
+
+/* "a FIFO", "a directory", ... for a st_mode that is not a regular file. */
+const char *pi_file_kind(unsigned mode);
 
 /* Read and decode an image file into the context's frame holder. */
 int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err);
+
+/* The same from an open descriptor (fd < 0: open path); fd is closed. */
+int pi_load_fd(pi_ctx *ctx, int fd, const char *path, pi_frame *f, char *err);
+
+/* Read, decode and infer from an open descriptor (closed in every case). */
+int pi_infer_fd(pi_ctx *ctx, int fd, const char *name, pi_result *res, char *err);
 
 /* Decode an encoded image into m, timing it into f->decode_ms. */
 int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f, char *err);

@@ -21,7 +21,6 @@
 #include "shim.h"
 
 #define META_PREPROCESS "spherepose.preprocess"
-#define MAX_FILE_BYTES (512L * 1024 * 1024)
 
 struct pi_ctx {
     const OrtApi *ort;
@@ -565,19 +564,41 @@ int pi_infer_memory(pi_ctx *ctx, const void *buf, size_t len, pi_result *res, ch
     return pi_infer_frame(ctx, &f, res, err);
 }
 
+long pi_max_file_bytes = PI_DEFAULT_MAX_FILE_BYTES;
+
 int pi_read_file(const char *path, unsigned char **buf, size_t *cap, size_t *len, char *err)
 {
     int fd = -1;
+
+    /* O_NONBLOCK: opening a FIFO (or a device) must not wait for a writer;
+     * fstat on what was opened, so nothing is swapped in between. */
+    fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
+    if (fd < 0) { pi_seterr(err, "open(%s): %s", path, strerror(errno)); goto fail; }
+    return pi_read_fd(fd, path, buf, cap, len, err);
+fail:
+    return -1;
+}
+
+const char *pi_file_kind(unsigned mode)
+{
+    return S_ISDIR(mode) ? "a directory" : S_ISFIFO(mode) ? "a FIFO" : S_ISSOCK(mode) ? "a socket"
+         : S_ISCHR(mode) ? "a character device" : S_ISBLK(mode) ? "a block device" : "not a regular file";
+}
+
+int pi_read_fd(int fd, const char *path, unsigned char **buf, size_t *cap, size_t *len, char *err)
+{
     struct stat sb;
     size_t got = 0;
+    long max_bytes = pi_max_file_bytes;
 
-    fd = open(path, O_RDONLY | O_CLOEXEC);
-    if (fd < 0) { pi_seterr(err, "open(%s): %s", path, strerror(errno)); goto fail; }
     if (fstat(fd, &sb) < 0) { pi_seterr(err, "fstat(%s): %s", path, strerror(errno)); goto fail; }
-    if (!S_ISREG(sb.st_mode)) { pi_seterr(err, "open(%s): not a regular file", path); goto fail; }
-    if (sb.st_size > MAX_FILE_BYTES) {
+    if (!S_ISREG(sb.st_mode)) {
+        pi_seterr(err, "open(%s): not a regular file (%s)", path, pi_file_kind(sb.st_mode));
+        goto fail;
+    }
+    if (sb.st_size > max_bytes) {
         pi_seterr(err, "open(%s): file of %lld bytes, over the limit of %ld", path,
-                  (long long)sb.st_size, MAX_FILE_BYTES);
+                  (long long)sb.st_size, max_bytes);
         goto fail;
     }
     if ((size_t)sb.st_size + 1 > *cap) {
@@ -603,9 +624,16 @@ fail:
 
 int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err)
 {
+    return pi_load_fd(ctx, -1, path, f, err);
+}
+
+int pi_load_fd(pi_ctx *ctx, int fd, const char *path, pi_frame *f, char *err)
+{
     double t0 = pi_now_ms();
     size_t len = 0;
-    if (pi_read_file(path, &ctx->filebuf, &ctx->filecap, &len, err) < 0) return -1;
+    if (fd >= 0 ? pi_read_fd(fd, path, &ctx->filebuf, &ctx->filecap, &len, err) < 0
+                : pi_read_file(path, &ctx->filebuf, &ctx->filecap, &len, err) < 0)
+        return -1;
     if (shim_decode(ctx->mat, ctx->filebuf, len, ctx->max_pixels, f, err) < 0) {
         /* name the file: "decode(path): reason" */
         char tmp[PI_ERR_LEN];
@@ -625,6 +653,21 @@ int pi_infer_file(pi_ctx *ctx, const char *path, pi_result *res, char *err)
     memset(res, 0, sizeof *res);
     if (!ctx || !path) { pi_seterr(err, "pi_infer_file: no file"); return -1; }
     if (pi_load_file(ctx, path, &f, err) < 0) return -1;
+    return pi_infer_frame(ctx, &f, res, err);
+}
+
+int pi_infer_fd(pi_ctx *ctx, int fd, const char *name, pi_result *res, char *err)
+{
+    pi_frame f;
+    pi_result tmp;
+    if (!res) res = &tmp;
+    memset(res, 0, sizeof *res);
+    if (!ctx || fd < 0) {
+        if (fd >= 0) close(fd);
+        pi_seterr(err, "pi_infer_fd: no file");
+        return -1;
+    }
+    if (pi_load_fd(ctx, fd, name, &f, err) < 0) return -1;
     return pi_infer_frame(ctx, &f, res, err);
 }
 

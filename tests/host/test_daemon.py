@@ -277,3 +277,16 @@ def test_gstreamer_camera_gives_the_frames_file_mode_gives(run, models, tmp_path
 def test_gstreamer_pipeline_that_cannot_start(run, models):
     r = run("--model", models["good"], "--camera", "gst:nosuchelement ! appsink", "--continuous", "--count", "1")
     assert r.rc == 2 and "gst:" in r.stderr
+
+
+def test_fifo_does_not_block_the_daemon(daemon, models, frames, tmp_path):
+    """`infer FIFO` answers an error at once; another client is served."""
+    fifo = tmp_path / "f.png"
+    os.mkfifo(fifo)
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}")
+    f = d.connect()
+    r = ask(f, f"infer {fifo}")
+    assert "not a regular file (a FIFO)" in r["error"] and r["file"] == str(fifo)
+    g = d.connect()
+    assert ask(g, "ping") == {"pong": True}
+    assert d.stop() == 0

@@ -294,3 +294,30 @@ def test_installed_unit_passes_systemd_verify(tmp_path):
     assert f"ExecStart={prefix}/bin/poseinfer --config /etc/poseinfer.conf" in unit.read_text()
     v = subprocess.run([sa, "verify", str(unit)], capture_output=True, text=True, timeout=120)
     assert v.returncode == 0 and v.stderr.strip() == "", v.stderr
+
+
+def test_fifo_and_devices_are_refused_not_waited_on(run, models, frames, tmp_path):
+    """A FIFO (no writer) among the images, given directly or inside a directory
+    argument, and a character device: each gets an error line naming it, at
+    once; the good frames around them still give poses."""
+    fifo = tmp_path / "f.png"
+    os.mkfifo(fifo)
+    d = tmp_path / "dir"
+    d.mkdir()
+    shutil.copy(frames["good.png"], d / "a.png")
+    os.mkfifo(d / "b.png")
+    r = run("--model", models["good"], frames["good.png"], fifo, "/dev/null", d, timeout=20)
+    assert r.rc == 1, r.stderr
+    assert len(r.lines) == 5, r.stdout
+    assert_pose(r.lines[0], frames["good.png"])
+    assert_error(r.lines[1], fifo, "not a regular file", "FIFO")
+    assert_error(r.lines[2], "/dev/null", "not a regular file", "character device")
+    assert_pose(r.lines[3], d / "a.png")
+    assert_error(r.lines[4], d / "b.png", "not a regular file", "FIFO")
+
+
+def test_config_fifo_is_refused(run, tmp_path):
+    fifo = tmp_path / "poseinfer.conf"
+    os.mkfifo(fifo)
+    r = run("--config", fifo, "x.png", timeout=20)
+    assert r.rc == 2 and str(fifo) in r.stderr and "not a regular file" in r.stderr
