@@ -687,9 +687,9 @@ int stage_recover(stage *s, int rehome, char *err) {
      * harmless code counts as a lost position. */
     if (alarm == 0 || stage_alarm_loses_position(alarm)) {
         if (!rehome) {
-            snprintf(derr, sizeof(derr), "stage in Alarm%s%s and the position may be lost: "
-                     "home it ($H) before measuring", alarm ? ": " : "",
-                     alarm ? stage_alarm_text(alarm) : "");
+            snprintf(derr, sizeof(derr), "stage in Alarm%s%s%s; the position may be lost: "
+                     "home it ($H) before measuring", alarm ? " (" : "",
+                     alarm ? stage_alarm_text(alarm) : "", alarm ? ")" : "");
             goto fail;
         }
         if (stage_home(s, derr) != 0) goto fail;

@@ -8,61 +8,11 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* GRBL 1.1's error_codes_en_US.csv, short form. The firmware keeps the same
- * numbers so that existing senders show the right text. */
-static const char *error_texts[] = {
-    [1] = "expected command letter",
-    [2] = "bad number format",
-    [3] = "invalid statement ('$' command not supported)",
-    [4] = "negative value",
-    [5] = "setting disabled (homing not enabled)",
-    [6] = "step pulse must be at least 3 usec",
-    [7] = "EEPROM read failed, defaults restored",
-    [8] = "'$' command only valid when Idle",
-    [9] = "G-code locked out during alarm or jog state",
-    [10] = "soft limits need homing enabled",
-    [11] = "line too long",
-    [12] = "step rate too high",
-    [13] = "safety door open",
-    [14] = "build info or startup line too long",
-    [15] = "jog target exceeds machine travel",
-    [16] = "invalid jog command",
-    [17] = "laser mode requires PWM output",
-    [20] = "unsupported or invalid G-code command",
-    [21] = "more than one command of a modal group",
-    [22] = "feed rate not set",
-    [23] = "command needs an integer value",
-    [24] = "more than one command needs axis words",
-    [25] = "word repeated in the block",
-    [26] = "no axis words where the command needs them",
-    [27] = "line number out of range",
-    [28] = "a required value word is missing",
-    [29] = "unsupported coordinate system",
-    [30] = "G53 only with G0 or G1",
-    [31] = "axis words not used by any command",
-    [32] = "arc has no axis words in the plane",
-    [33] = "invalid motion target",
-    [34] = "arc radius error",
-    [35] = "G2/G3 offsets missing in the plane",
-    [36] = "unused value words in the block",
-    [37] = "tool length offset not on the configured axis",
-    [38] = "tool number out of range",
-};
-
-static const char *alarm_texts[] = {
-    [1] = "hard limit triggered, position lost: re-home",
-    [2] = "soft limit: target beyond machine travel, position kept: unlock is safe",
-    [3] = "reset while in motion, position lost: re-home",
-    [4] = "probe fail: probe not in its expected initial state",
-    [5] = "probe fail: probe did not contact",
-    [6] = "homing fail: reset during the homing cycle",
-    [7] = "homing fail: safety door opened during homing",
-    [8] = "homing fail: pull-off did not clear the limit switch",
-    [9] = "homing fail: limit switch not found within the search distance",
-    /* This firmware: its fault path (watchdog reset, internal error);
-     * GRBL 1.1h uses 10 for a dual-axis homing failure. */
-    [10] = "controller fault (watchdog or internal error), drivers off: re-home",
-};
+/* error_texts[] and alarm_texts[]: the descriptions of firmware/doc/
+ * error_codes.csv and alarm_codes.csv (GRBL 1.1's numbers and texts, plus this
+ * firmware's own), generated at build time by codes_from_csv.awk so that the
+ * host shows what the firmware documents. */
+#include "stage_codes.h"
 
 #define NELEM(a) ((int)(sizeof(a) / sizeof((a)[0])))
 

@@ -49,7 +49,9 @@ int stage_parse_status(const char *line, const double *known_wco,
 /* Parse "$N=value" into *n and *value. Returns 0 or -1 with err. */
 int stage_parse_setting(const char *line, int *n, double *value, char *err);
 
-/* GRBL 1.1's meanings of error:N and ALARM:N ("unknown error code" else). */
+/* The meaning of error:N and ALARM:N as the firmware's tables give it
+ * (firmware/doc/error_codes.csv, alarm_codes.csv); "unknown error code" or
+ * "unknown alarm code" for a code they lack. */
 const char *stage_error_text(int code);
 const char *stage_alarm_text(int code);
 

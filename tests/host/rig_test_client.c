@@ -179,7 +179,7 @@ static void test_alarm_then_recover_rehome(void **state) {
             "expect $H\nstate <Idle|MPos:0.000,0.000,0.000|FS:0,0>\nsend ok\npolls 1\nend\n");
     assert_int_equal(stage_move_wait(&s, xyz, 0, err), -1);
     assert_non_null(strstr(err, "ALARM:1"));
-    assert_non_null(strstr(err, "hard limit"));
+    assert_non_null(strstr(err, "Hard limit"));
     assert_int_equal(s.last_alarm, 1);
     if (stage_recover(&s, 1, err) != 0) fail_msg("%s", err);
     assert_string_equal(s.last.state, "Idle");

@@ -133,16 +133,19 @@ static void test_settings(void **state) {
     assert_non_null(strstr(err, "stage_parse_setting"));
 }
 
+/* The texts are firmware/doc/*.csv's descriptions, generated at build time. */
 static void test_code_texts(void **state) {
     (void)state;
+    assert_string_equal(stage_error_text(1), "G-code words consist of a letter and a value. Letter was not found.");
     assert_non_null(strstr(stage_error_text(9), "locked out"));
-    assert_non_null(strstr(stage_error_text(20), "unsupported"));
+    assert_non_null(strstr(stage_error_text(20), "Unsupported"));
     assert_string_equal(stage_error_text(0), "unknown error code");
     assert_string_equal(stage_error_text(18), "unknown error code");
     assert_string_equal(stage_error_text(1000), "unknown error code");
     assert_string_equal(stage_error_text(-3), "unknown error code");
-    assert_non_null(strstr(stage_alarm_text(1), "hard limit"));
-    assert_non_null(strstr(stage_alarm_text(9), "homing"));
+    assert_non_null(strstr(stage_alarm_text(1), "Hard limit"));
+    assert_non_null(strstr(stage_alarm_text(9), "Homing"));
+    assert_non_null(strstr(stage_alarm_text(10), "watchdog"));   /* this firmware's own code */
     assert_string_equal(stage_alarm_text(42), "unknown alarm code");
     assert_true(stage_alarm_loses_position(1));
     assert_true(stage_alarm_loses_position(3));
