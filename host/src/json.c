@@ -286,27 +286,63 @@ void sb_printf(sbuf *s, const char *fmt, ...)
     s->len += (size_t)n;
 }
 
+/* Length of the well-formed UTF-8 sequence at c (RFC 3629: no overlong
+ * forms, no surrogates, nothing above U+10FFFF), or 0 when it is not one. */
+static size_t utf8_len(const unsigned char *c)
+{
+    unsigned char lo = 0x80, hi = 0xBF;
+    size_t n;
+    if (c[0] < 0x80) return 1;
+    if (c[0] >= 0xC2 && c[0] <= 0xDF) n = 2;
+    else if (c[0] >= 0xE0 && c[0] <= 0xEF) {
+        n = 3;
+        if (c[0] == 0xE0) lo = 0xA0;
+        if (c[0] == 0xED) hi = 0x9F;
+    } else if (c[0] >= 0xF0 && c[0] <= 0xF4) {
+        n = 4;
+        if (c[0] == 0xF0) lo = 0x90;
+        if (c[0] == 0xF4) hi = 0x8F;
+    } else return 0;
+    if (c[1] < lo || c[1] > hi) return 0; /* also stops at the NUL */
+    for (size_t i = 2; i < n; i++)
+        if (c[i] < 0x80 || c[i] > 0xBF) return 0;
+    return n;
+}
+
 void sb_json_str(sbuf *s, const char *str)
 {
     char tmp[8];
+    const unsigned char *c = (const unsigned char *)(str ? str : "");
     sb_puts(s, "\"");
-    for (const unsigned char *c = (const unsigned char *)(str ? str : ""); *c; c++) {
+    while (*c) {
+        size_t n;
         switch (*c) {
-        case '"': sb_puts(s, "\\\""); break;
-        case '\\': sb_puts(s, "\\\\"); break;
-        case '\n': sb_puts(s, "\\n"); break;
-        case '\r': sb_puts(s, "\\r"); break;
-        case '\t': sb_puts(s, "\\t"); break;
-        default:
-            if (*c < 0x20 || *c == 0x7f) {
-                snprintf(tmp, sizeof tmp, "\\u%04x", *c);
-                sb_puts(s, tmp);
-            } else {
-                tmp[0] = (char)*c;
-                tmp[1] = '\0';
-                sb_puts(s, tmp);
-            }
+        case '"': sb_puts(s, "\\\""); c++; continue;
+        case '\\': sb_puts(s, "\\\\"); c++; continue;
+        case '\n': sb_puts(s, "\\n"); c++; continue;
+        case '\r': sb_puts(s, "\\r"); c++; continue;
+        case '\t': sb_puts(s, "\\t"); c++; continue;
+        default: break;
         }
+        if (*c < 0x20 || *c == 0x7f) {
+            snprintf(tmp, sizeof tmp, "\\u%04x", *c);
+            sb_puts(s, tmp);
+            c++;
+            continue;
+        }
+        /* Bytes that are not UTF-8 (a file name from a Latin-1 system, junk
+         * on the socket) would make the line invalid JSON: each such byte
+         * becomes U+FFFD, written as an escape (docs/poseinfer.md). */
+        n = utf8_len(c);
+        if (n == 0) {
+            sb_puts(s, "\\ufffd");
+            c++;
+            continue;
+        }
+        memcpy(tmp, c, n);
+        tmp[n] = '\0';
+        sb_puts(s, tmp);
+        c += n;
     }
     sb_puts(s, "\"");
 }

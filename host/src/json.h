@@ -38,7 +38,9 @@ void sb_free(sbuf *s);
 void sb_reset(sbuf *s);
 void sb_puts(sbuf *s, const char *str);
 void sb_printf(sbuf *s, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-/* Append str as a JSON string literal, with quotes and escapes. */
+/* Append str as a JSON string literal, with quotes and escapes; each byte
+ * that is not part of well-formed UTF-8 becomes \ufffd, so the output is
+ * always valid UTF-8 JSON. */
 void sb_json_str(sbuf *s, const char *str);
 /* Append a number as JSON (non-finite values become null). */
 void sb_json_num(sbuf *s, double v, int decimals);

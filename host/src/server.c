@@ -376,7 +376,14 @@ static int client_read(app *a, client *c)
             *nl = '\0';
             n = (size_t)(nl - c->in) + 1;
             if (nl > c->in && nl[-1] == '\r') nl[-1] = '\0';
-            if (!c->closing && proto_handle(a, c->in, &c->out)) c->closing = 1;
+            if (c->closing) {
+            } else if (memchr(c->in, '\0', n - 1)) {
+                /* a C string would end there: "infer /a\0junk" must not open /a */
+                error_json(&c->out, NULL, NULL, "request contains a NUL byte");
+                sb_puts(&c->out, "\n");
+            } else if (proto_handle(a, c->in, &c->out)) {
+                c->closing = 1;
+            }
             memmove(c->in, c->in + n, c->inlen - n);
             c->inlen -= n;
         }

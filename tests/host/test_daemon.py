@@ -290,3 +290,19 @@ def test_fifo_does_not_block_the_daemon(daemon, models, frames, tmp_path):
     g = d.connect()
     assert ask(g, "ping") == {"pong": True}
     assert d.stop() == 0
+
+
+def test_request_bytes_that_are_not_utf8_give_valid_json(daemon, models, tmp_path):
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}")
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.connect(d.addr[5:])
+    s.settimeout(30 * d.scale)
+    f = s.makefile("rwb", buffering=0)
+    f.write(b"fly\xff\xfe away\ninfer /x/\xe9t\xe9.png\ninfer /x.png\x00/etc/passwd\nping\n")
+    replies = [json.loads(f.readline().decode("utf-8")) for _ in range(4)]
+    assert "unknown command \"fly\ufffd\ufffd\"" in replies[0]["error"]
+    assert replies[1]["file"] == "/x/\ufffdt\ufffd.png" and "error" in replies[1]
+    assert "NUL" in replies[2]["error"]
+    assert replies[3] == {"pong": True}
+    s.close()
+    assert d.stop() == 0

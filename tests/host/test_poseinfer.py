@@ -321,3 +321,18 @@ def test_config_fifo_is_refused(run, tmp_path):
     os.mkfifo(fifo)
     r = run("--config", fifo, "x.png", timeout=20)
     assert r.rc == 2 and str(fifo) in r.stderr and "not a regular file" in r.stderr
+
+
+def test_file_name_that_is_not_utf8_gives_valid_json(poseinfer, models, frames, tmp_path):
+    """Bytes of a file name that are not UTF-8 are written as \\ufffd: every
+    stdout line is valid UTF-8 JSON (docs/poseinfer.md)."""
+    d = os.fsencode(tmp_path)
+    good = d + b"/caf\xe9 \xff.png"
+    shutil.copy(frames["good.png"], good)
+    missing = d + b"/\xc3(\x80.png"
+    proc = subprocess.run([os.fsencode(poseinfer), b"--model", os.fsencode(models["good"]), good, missing],
+                          capture_output=True, timeout=60)
+    assert proc.returncode == 1, proc.stderr
+    lines = [json.loads(l.decode("utf-8")) for l in proc.stdout.splitlines()]
+    assert lines[0]["file"] == str(tmp_path) + "/caf\ufffd \ufffd.png" and "x" in lines[0]
+    assert lines[1]["file"] == str(tmp_path) + "/\ufffd(\ufffd.png" and "No such file" in lines[1]["error"]

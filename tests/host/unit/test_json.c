@@ -79,6 +79,36 @@ static void writes_escaped_strings_and_numbers(void **state)
     sb_free(&s);
 }
 
+/* Well-formed UTF-8 passes unchanged; every byte that is not part of it
+ * becomes \ufffd, so the line stays valid JSON (issue: non-UTF-8 file names). */
+static void replaces_bytes_that_are_not_utf8(void **state)
+{
+    static const struct { const char *in, *out; } cases[] = {
+        {"n\xc3\xa4me \xe2\x82\xac \xf0\x9f\x98\x80", "\"n\xc3\xa4me \xe2\x82\xac \xf0\x9f\x98\x80\""},
+        {"a\xff" "b", "\"a\\ufffdb\""},                       /* never a UTF-8 byte */
+        {"\xe9t\xe9.png", "\"\\ufffdt\\ufffd.png\""},         /* Latin-1 */
+        {"\xc3", "\"\\ufffd\""},                           /* cut at the end */
+        {"\xe2\x82", "\"\\ufffd\\ufffd\""},                  /* cut at the end */
+        {"\xc0\xaf", "\"\\ufffd\\ufffd\""},                  /* overlong '/' */
+        {"\xed\xa0\x80", "\"\\ufffd\\ufffd\\ufffd\""},         /* a surrogate */
+        {"\xf4\x90\x80\x80", "\"\\ufffd\\ufffd\\ufffd\\ufffd\""}, /* above U+10FFFF */
+        {"\x80x", "\"\\ufffdx\""},                         /* lone continuation */
+    };
+    sbuf s;
+    json_value v;
+    char err[128];
+    (void)state;
+    sb_init(&s);
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        sb_reset(&s);
+        sb_json_str(&s, cases[i].in);
+        assert_string_equal(s.buf, cases[i].out);
+        assert_int_equal(json_parse(s.buf, &v, err, sizeof err), 0);
+        json_free(&v);
+    }
+    sb_free(&s);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -86,6 +116,7 @@ int main(void)
         cmocka_unit_test(rejects_bad_json),
         cmocka_unit_test(bounds_depth),
         cmocka_unit_test(writes_escaped_strings_and_numbers),
+        cmocka_unit_test(replaces_bytes_that_are_not_utf8),
     };
     return cmocka_run_group_tests_name("json", tests, NULL, NULL);
 }
