@@ -92,7 +92,7 @@ static int make_dirs(const char *path, char *err) {
             char c = *p;
             *p = '\0';
             if (mkdir(tmp, 0777) != 0 && errno != EEXIST) {
-                snprintf(err, RIG_ERR_LEN, "mkdir(%.200s): %s", tmp, strerror(errno));
+                rig_seterr(err, "mkdir(%.200s): %s", tmp, strerror(errno));
                 return -1;
             }
             *p = c;
@@ -132,7 +132,7 @@ static void settle(int ms) {
 /* Stop the stage where it is: feed hold (decelerates, keeps the position),
  * wait for the hold to complete, then a soft reset to flush the planner. */
 static void stop_stage(stage *s) {
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double deadline;
     if (s->fd < 0 || s->dead) return;
     s->o.cancel = NULL;
@@ -174,7 +174,7 @@ int main(int argc, char **argv) {
     int nrandom = 0, home = 0, settle_ms = 300, discard = 0, save_frames = 0, retries = 1;
     int cam_timeout = 5000, c, i, npose = 0, nrows = 0, failed = 0, rc = EXIT_USAGE;
     int cam_fail_run = 0, longidx = 0;
-    char err[RIG_ERR_LEN > STAGE_ERR_LEN ? RIG_ERR_LEN : STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     char pierr[PI_ERR_LEN], path[4096], plan_desc[256], startbuf[32];
     const char *stopped = NULL;
     rig_pose *poses = NULL;

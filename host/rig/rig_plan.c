@@ -37,7 +37,7 @@ int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err) {
     *poses = NULL;
     *n = 0;
     if (!(f = fopen(path, "r"))) {
-        snprintf(err, RIG_ERR_LEN, "fopen(%s): %s", path, strerror(errno));
+        rig_seterr(err, "fopen(%s): %s", path, strerror(errno));
         return -1;
     }
     while (fgets(line, sizeof(line), f)) {
@@ -45,7 +45,7 @@ int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err) {
         double xyz[3];
         lineno++;
         if (len == sizeof(line) - 1 && line[len - 1] != '\n') {
-            snprintf(err, RIG_ERR_LEN, "%s:%d: line too long", path, lineno);
+            rig_seterr(err, "%s:%d: line too long", path, lineno);
             goto fail;
         }
         while (len && (line[len - 1] == '\n' || line[len - 1] == '\r' || isspace((unsigned char)line[len - 1])))
@@ -58,19 +58,19 @@ int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err) {
                 seen_data_or_header = 1;
                 continue;
             }
-            snprintf(err, RIG_ERR_LEN, "%s:%d: expected 'x,y,z' in degrees, got '%.60s'", path, lineno, line);
+            rig_seterr(err, "%s:%d: expected 'x,y,z' in degrees, got '%.60s'", path, lineno, line);
             goto fail;
         }
         seen_data_or_header = 1;
         if (cnt == RIG_PLAN_MAX) {
-            snprintf(err, RIG_ERR_LEN, "%s:%d: more than %d poses", path, lineno, RIG_PLAN_MAX);
+            rig_seterr(err, "%s:%d: more than %d poses", path, lineno, RIG_PLAN_MAX);
             goto fail;
         }
         if (cnt == cap) {
             rig_pose *nv;
             cap = cap ? cap * 2 : 64;
             if (!(nv = realloc(v, (size_t)cap * sizeof(*v)))) {
-                snprintf(err, RIG_ERR_LEN, "%s: out of memory", path);
+                rig_seterr(err, "%s: out of memory", path);
                 goto fail;
             }
             v = nv;
@@ -79,11 +79,11 @@ int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err) {
         cnt++;
     }
     if (ferror(f)) {
-        snprintf(err, RIG_ERR_LEN, "read(%s): %s", path, strerror(errno));
+        rig_seterr(err, "read(%s): %s", path, strerror(errno));
         goto fail;
     }
     if (cnt == 0) {
-        snprintf(err, RIG_ERR_LEN, "%s: no poses in the plan", path);
+        rig_seterr(err, "%s: no poses in the plan", path);
         goto fail;
     }
     fclose(f);
@@ -111,17 +111,17 @@ int rig_plan_random(int n, const double range[3][2], unsigned long long seed,
     int i, a;
     *poses = NULL;
     if (n < 1 || n > RIG_PLAN_MAX) {
-        snprintf(err, RIG_ERR_LEN, "rig_plan_random: %d poses, need 1..%d", n, RIG_PLAN_MAX);
+        rig_seterr(err, "rig_plan_random: %d poses, need 1..%d", n, RIG_PLAN_MAX);
         return -1;
     }
     for (a = 0; a < 3; a++) {
         if (!(range[a][0] <= range[a][1]) || !isfinite(range[a][0]) || !isfinite(range[a][1])) {
-            snprintf(err, RIG_ERR_LEN, "rig_plan_random: bad range for %c", 'x' + a);
+            rig_seterr(err, "rig_plan_random: bad range for %c", 'x' + a);
             return -1;
         }
     }
     if (!(v = malloc((size_t)n * sizeof(*v)))) {
-        snprintf(err, RIG_ERR_LEN, "rig_plan_random: out of memory");
+        rig_seterr(err, "rig_plan_random: out of memory");
         return -1;
     }
     for (i = 0; i < n; i++) {

@@ -3,7 +3,8 @@
 #ifndef RIG_PLAN_H
 #define RIG_PLAN_H
 
-#define RIG_ERR_LEN 256
+#include "rig_err.h"
+
 #define RIG_PLAN_MAX 100000
 
 typedef struct {

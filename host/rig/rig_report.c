@@ -15,7 +15,7 @@ static FILE *atomic_open(const char *path, char *tmp, size_t tmplen, char *err) 
     FILE *f;
     snprintf(tmp, tmplen, "%s.tmp", path);
     if (!(f = fopen(tmp, "w")))
-        snprintf(err, RIG_ERR_LEN, "fopen(%s): %s", tmp, strerror(errno));
+        rig_seterr(err, "fopen(%s): %s", tmp, strerror(errno));
     return f;
 }
 
@@ -23,18 +23,18 @@ static int atomic_commit(FILE *f, const char *tmp, const char *path, char *err) 
     /* fsync before rename: after a crash the file is the old or the new
      * one, never an empty new name. */
     if (fflush(f) != 0 || ferror(f) || fsync(fileno(f)) != 0) {
-        snprintf(err, RIG_ERR_LEN, "write(%s): %s", tmp, strerror(errno));
+        rig_seterr(err, "write(%s): %s", tmp, strerror(errno));
         fclose(f);
         unlink(tmp);
         return -1;
     }
     if (fclose(f) != 0) {
-        snprintf(err, RIG_ERR_LEN, "fclose(%s): %s", tmp, strerror(errno));
+        rig_seterr(err, "fclose(%s): %s", tmp, strerror(errno));
         unlink(tmp);
         return -1;
     }
     if (rename(tmp, path) != 0) {
-        snprintf(err, RIG_ERR_LEN, "rename(%s): %s", path, strerror(errno));
+        rig_seterr(err, "rename(%s): %s", path, strerror(errno));
         unlink(tmp);
         return -1;
     }
@@ -85,7 +85,7 @@ int rig_summarise_rows(const rig_row *rows, int n, rig_summary *s, char *err) {
     double *g = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
     int i, k = 0, rc = 0;
     if (!e || !g) {
-        snprintf(err, RIG_ERR_LEN, "rig_summarise_rows: out of memory");
+        rig_seterr(err, "rig_summarise_rows: out of memory");
         rc = -1;
         goto out;
     }
@@ -96,7 +96,7 @@ int rig_summarise_rows(const rig_row *rows, int n, rig_summary *s, char *err) {
         k++;
     }
     if (rig_summarise(e, g, k, s) != 0) {
-        snprintf(err, RIG_ERR_LEN, "rig_summarise: out of memory");
+        rig_seterr(err, "rig_summarise: out of memory");
         rc = -1;
     }
 out:

@@ -6,7 +6,6 @@
 #include <fcntl.h>
 #include <libserialport.h>
 #include <poll.h>
-#include <stdarg.h>
 #include <stdlib.h>
 #include <string.h>
 #include <termios.h>
@@ -21,14 +20,6 @@ static long long now_ms(void) {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (long long)ts.tv_sec * 1000 + ts.tv_nsec / 1000000;
-}
-
-static void seterr(char *err, const char *fmt, ...) {
-    va_list ap;
-    if (!err) return;
-    va_start(ap, fmt);
-    vsnprintf(err, STAGE_ERR_LEN, fmt, ap);
-    va_end(ap);
 }
 
 /* Trace one line of traffic with control bytes escaped, so a log of a
@@ -80,7 +71,7 @@ int stage_list_ports(FILE *out, char *err) {
     int i, n = 0;
     if (sp_list_ports(&ports) != SP_OK) {
         char *m = sp_last_error_message();
-        seterr(err, "sp_list_ports: %s", m ? m : "failed");
+        rig_seterr(err, "sp_list_ports: %s", m ? m : "failed");
         sp_free_error_message(m);
         return -1;
     }
@@ -103,7 +94,7 @@ int stage_find_arduino(char *path, int len, char *err) {
     int i, found = 0;
     if (sp_list_ports(&ports) != SP_OK) {
         char *m = sp_last_error_message();
-        seterr(err, "sp_list_ports: %s", m ? m : "failed");
+        rig_seterr(err, "sp_list_ports: %s", m ? m : "failed");
         sp_free_error_message(m);
         return -1;
     }
@@ -117,7 +108,7 @@ int stage_find_arduino(char *path, int len, char *err) {
     }
     sp_free_port_list(ports);
     if (!found) {
-        seterr(err, "stage_find_arduino: no serial port with a known Arduino USB VID:PID "
+        rig_seterr(err, "stage_find_arduino: no serial port with a known Arduino USB VID:PID "
                     "(2341:0043, 2341:0001, 1A86:7523, ...); give --port PATH");
         return -1;
     }
@@ -178,11 +169,11 @@ static int open_termios(stage *s, char *err) {
     struct termios t;
     int fd = open(s->path, O_RDWR | O_NOCTTY | O_NONBLOCK);
     if (fd == -1) {
-        seterr(err, "open(%s): %s", s->path, strerror(errno));
+        rig_seterr(err, "open(%s): %s", s->path, strerror(errno));
         return -1;
     }
     if (tcgetattr(fd, &t) == -1) {
-        seterr(err, "tcgetattr(%s): %s", s->path, strerror(errno));
+        rig_seterr(err, "tcgetattr(%s): %s", s->path, strerror(errno));
         close(fd);
         return -1;
     }
@@ -194,7 +185,7 @@ static int open_termios(stage *s, char *err) {
     cfsetispeed(&t, baud_const(s->o.baud));
     cfsetospeed(&t, baud_const(s->o.baud));
     if (tcsetattr(fd, TCSANOW, &t) == -1) {
-        seterr(err, "tcsetattr(%s): %s", s->path, strerror(errno));
+        rig_seterr(err, "tcsetattr(%s): %s", s->path, strerror(errno));
         close(fd);
         return -1;
     }
@@ -217,7 +208,7 @@ void stage_close(stage *s) {
 /* ---- bytes and lines -------------------------------------------------- */
 
 static int vanished(stage *s, const char *call, char *err, int e) {
-    seterr(err, "%s(%s): port vanished (%s)", call, s->path, e ? strerror(e) : "hang-up");
+    rig_seterr(err, "%s(%s): port vanished (%s)", call, s->path, e ? strerror(e) : "hang-up");
     s->dead = 1;
     return -1;
 }
@@ -226,7 +217,7 @@ static int write_all(stage *s, const char *buf, size_t len, char *err) {
     long long deadline = now_ms() + s->o.reply_timeout_ms;
     size_t off = 0;
     if (s->dead || s->fd < 0) {
-        seterr(err, "write(%s): port closed after an earlier failure", s->path);
+        rig_seterr(err, "write(%s): port closed after an earlier failure", s->path);
         return -1;
     }
     while (off < len) {
@@ -240,7 +231,7 @@ static int write_all(stage *s, const char *buf, size_t len, char *err) {
             struct pollfd pfd = {s->fd, POLLOUT, 0};
             long long left = deadline - now_ms();
             if (left <= 0) {
-                seterr(err, "write(%s): output blocked for %d ms", s->path, s->o.reply_timeout_ms);
+                rig_seterr(err, "write(%s): output blocked for %d ms", s->path, s->o.reply_timeout_ms);
                 return -1;
             }
             if (poll(&pfd, 1, (int)left) == 1 && (pfd.revents & (POLLHUP | POLLERR)))
@@ -276,7 +267,7 @@ static int take_line(stage *s, char *line, size_t size) {
 
 /* Book-keeping every received line gets, whoever waits for it. */
 static stage_line_kind note_line(stage *s, const char *line, int *code) {
-    char perr[STAGE_ERR_LEN];
+    char perr[RIG_ERR_LEN];
     int c = 0;
     stage_line_kind k = stage_parse_line(line, &c);
     if (code) *code = c;
@@ -322,11 +313,11 @@ static int read_line(stage *s, char *line, size_t size, long long deadline, char
         int r;
         if (take_line(s, line, size)) return 1;
         if (s->o.cancel && *s->o.cancel) {
-            seterr(err, "read(%s): interrupted", s->path);
+            rig_seterr(err, "read(%s): interrupted", s->path);
             return -1;
         }
         if (s->dead || s->fd < 0) {
-            seterr(err, "read(%s): port closed after an earlier failure", s->path);
+            rig_seterr(err, "read(%s): port closed after an earlier failure", s->path);
             return -1;
         }
         left = deadline - now_ms();
@@ -337,7 +328,7 @@ static int read_line(stage *s, char *line, size_t size, long long deadline, char
         r = poll(&pfd, 1, (int)left);
         if (r == -1 && errno == EINTR) continue;   /* the loop top sees a cancel */
         if (r == -1) {
-            seterr(err, "poll(%s): %s", s->path, strerror(errno));
+            rig_seterr(err, "poll(%s): %s", s->path, strerror(errno));
             return -1;
         }
         if (r == 0) return 0;
@@ -377,17 +368,17 @@ static int send_rt(stage *s, char byte, char *err) {
 
 int stage_command(stage *s, const char *cmd, int timeout_ms,
                   void (*on_line)(void *ctx, const char *line), void *ctx, char *err) {
-    char buf[128], line[256], derr[STAGE_ERR_LEN];
+    char buf[128], line[256], derr[RIG_ERR_LEN];
     long long deadline;
     size_t len = strlen(cmd);
     int code;
 
     if (len == 0 || len > 80 || strpbrk(cmd, "\r\n")) {
-        seterr(err, "stage_command(%.40s): line empty, over 80 characters or multi-line", cmd);
+        rig_seterr(err, "stage_command(%.40s): line empty, over 80 characters or multi-line", cmd);
         return -1;
     }
     if (drain(s, derr) != 0) {
-        seterr(err, "stage_command(%s): %s", cmd, derr);
+        rig_seterr(err, "stage_command(%s): %s", cmd, derr);
         return -1;
     }
     s->reset_seen = 0;
@@ -395,7 +386,7 @@ int stage_command(stage *s, const char *cmd, int timeout_ms,
     memcpy(buf, cmd, len);
     buf[len] = '\n';
     if (write_all(s, buf, len + 1, derr) != 0) {
-        seterr(err, "stage_command(%s): %s", cmd, derr);
+        rig_seterr(err, "stage_command(%s): %s", cmd, derr);
         return -1;
     }
     if (timeout_ms <= 0) timeout_ms = s->o.reply_timeout_ms;
@@ -403,24 +394,24 @@ int stage_command(stage *s, const char *cmd, int timeout_ms,
     for (;;) {
         int r = read_line(s, line, sizeof(line), deadline, derr);
         if (r < 0) {
-            seterr(err, "stage_command(%s): %s", cmd, derr);
+            rig_seterr(err, "stage_command(%s): %s", cmd, derr);
             return -1;
         }
         if (r == 0) {
-            seterr(err, "stage_command(%s): no reply within %d ms", cmd, timeout_ms);
+            rig_seterr(err, "stage_command(%s): no reply within %d ms", cmd, timeout_ms);
             return -1;
         }
         switch (note_line(s, line, &code)) {
         case STAGE_LINE_OK:
             return 0;
         case STAGE_LINE_ERROR:
-            seterr(err, "stage_command(%s): error:%d (%s)", cmd, code, stage_error_text(code));
+            rig_seterr(err, "stage_command(%s): error:%d (%s)", cmd, code, stage_error_text(code));
             return -1;
         case STAGE_LINE_ALARM:
-            seterr(err, "stage_command(%s): ALARM:%d (%s)", cmd, code, stage_alarm_text(code));
+            rig_seterr(err, "stage_command(%s): ALARM:%d (%s)", cmd, code, stage_alarm_text(code));
             return -1;
         case STAGE_LINE_BANNER:
-            seterr(err, "stage_command(%s): the controller reset before replying ('%s')", cmd, line);
+            rig_seterr(err, "stage_command(%s): the controller reset before replying ('%s')", cmd, line);
             return -1;
         case STAGE_LINE_EMPTY:
         case STAGE_LINE_STATUS:
@@ -433,22 +424,22 @@ int stage_command(stage *s, const char *cmd, int timeout_ms,
 }
 
 int stage_status(stage *s, stage_status_report *st, char *err) {
-    char line[256], derr[STAGE_ERR_LEN];
+    char line[256], derr[RIG_ERR_LEN];
     long long deadline;
     if (drain(s, derr) != 0 || send_rt(s, RT_STATUS, derr) != 0) {
-        seterr(err, "stage_status: %s", derr);
+        rig_seterr(err, "stage_status: %s", derr);
         return -1;
     }
     deadline = now_ms() + s->o.reply_timeout_ms;
     for (;;) {
         int r = read_line(s, line, sizeof(line), deadline, derr);
         if (r < 0) {
-            seterr(err, "stage_status: %s", derr);
+            rig_seterr(err, "stage_status: %s", derr);
             return -1;
         }
         if (r == 0) {
-            seterr(err, "stage_status(%s): no status report within %d ms", s->path,
-                   s->o.reply_timeout_ms);
+            rig_seterr(err, "stage_status(%s): no status report within %d ms", s->path,
+                       s->o.reply_timeout_ms);
             return -1;
         }
         if (note_line(s, line, NULL) == STAGE_LINE_STATUS) {
@@ -459,7 +450,7 @@ int stage_status(stage *s, stage_status_report *st, char *err) {
 }
 
 int stage_wait_idle(stage *s, int timeout_ms, char *err) {
-    char line[256], derr[STAGE_ERR_LEN];
+    char line[256], derr[RIG_ERR_LEN];
     long long start = now_ms(), deadline;
     int alarm0 = s->last_alarm;
 
@@ -469,31 +460,31 @@ int stage_wait_idle(stage *s, int timeout_ms, char *err) {
     for (;;) {
         long long next;
         if (stage_status(s, NULL, derr) != 0) {
-            seterr(err, "stage_wait_idle: %s", derr);
+            rig_seterr(err, "stage_wait_idle: %s", derr);
             return -1;
         }
         if (s->reset_seen) {
-            seterr(err, "stage_wait_idle: the controller reset during motion ('%s')", s->banner);
+            rig_seterr(err, "stage_wait_idle: the controller reset during motion ('%s')", s->banner);
             return -1;
         }
         if (s->last_alarm && s->last_alarm != alarm0) {
-            seterr(err, "stage_wait_idle: ALARM:%d (%s)", s->last_alarm,
-                   stage_alarm_text(s->last_alarm));
+            rig_seterr(err, "stage_wait_idle: ALARM:%d (%s)", s->last_alarm,
+                       stage_alarm_text(s->last_alarm));
             return -1;
         }
         if (strcmp(s->last.state, "Idle") == 0) return 0;
         if (strcmp(s->last.state, "Alarm") == 0) {
-            seterr(err, "stage_wait_idle: stage in Alarm%s%s", s->last_alarm ? ": " : "",
-                   s->last_alarm ? stage_alarm_text(s->last_alarm) : " (unlock with $X or home with $H)");
+            rig_seterr(err, "stage_wait_idle: stage in Alarm%s%s", s->last_alarm ? ": " : "",
+                       s->last_alarm ? stage_alarm_text(s->last_alarm) : " (unlock with $X or home with $H)");
             return -1;
         }
         if (strcmp(s->last.state, "Check") == 0) {
-            seterr(err, "stage_wait_idle: stage in check mode ($C), it does not move");
+            rig_seterr(err, "stage_wait_idle: stage in check mode ($C), it does not move");
             return -1;
         }
         if (now_ms() >= deadline) {
-            seterr(err, "stage_wait_idle: still %s after %d ms (MPos %.3f,%.3f,%.3f)", s->last.state,
-                   timeout_ms, s->last.mpos[0], s->last.mpos[1], s->last.mpos[2]);
+            rig_seterr(err, "stage_wait_idle: still %s after %d ms (MPos %.3f,%.3f,%.3f)", s->last.state,
+                       timeout_ms, s->last.mpos[0], s->last.mpos[1], s->last.mpos[2]);
             return -1;
         }
         /* Between polls, keep reading so that an ALARM line is seen now. */
@@ -502,7 +493,7 @@ int stage_wait_idle(stage *s, int timeout_ms, char *err) {
         for (;;) {
             int r = read_line(s, line, sizeof(line), next, derr);
             if (r < 0) {
-                seterr(err, "stage_wait_idle: %s", derr);
+                rig_seterr(err, "stage_wait_idle: %s", derr);
                 return -1;
             }
             if (r == 0) break;
@@ -512,12 +503,12 @@ int stage_wait_idle(stage *s, int timeout_ms, char *err) {
 }
 
 int stage_home(stage *s, char *err) {
-    char derr[STAGE_ERR_LEN];
+    char derr[RIG_ERR_LEN];
     /* GRBL answers $H only when the cycle is over, so the deadline is the
      * homing one, not the reply one. */
     if (stage_command(s, "$H", s->o.home_timeout_ms, NULL, NULL, derr) != 0 ||
         stage_wait_idle(s, s->o.reply_timeout_ms + s->o.poll_ms * 4, derr) != 0) {
-        seterr(err, "stage_home: %s", derr);
+        rig_seterr(err, "stage_home: %s", derr);
         return -1;
     }
     s->last_alarm = 0;
@@ -530,7 +521,7 @@ int stage_move(stage *s, const double xyz[STAGE_AXES], double feed, char *err) {
     int i;
     for (i = 0; i < STAGE_AXES; i++) {
         if (!(xyz[i] > -1e5 && xyz[i] < 1e5)) {
-            seterr(err, "stage_move: axis %c target %g out of range", 'X' + i, xyz[i]);
+            rig_seterr(err, "stage_move: axis %c target %g out of range", 'X' + i, xyz[i]);
             return -1;
         }
     }
@@ -545,14 +536,14 @@ int stage_move(stage *s, const double xyz[STAGE_AXES], double feed, char *err) {
 }
 
 int stage_move_wait(stage *s, const double xyz[STAGE_AXES], double feed, char *err) {
-    char derr[STAGE_ERR_LEN];
+    char derr[RIG_ERR_LEN];
     if (stage_move(s, xyz, feed, err) != 0) return -1;
     /* G4 P0 is GRBL's sync barrier: its ok comes once the planner is empty.
      * Polling alone could see a stale Idle in the instant between the move's
      * ok and the start of the motion. */
     if (stage_command(s, "G4 P0", s->o.move_timeout_ms, NULL, NULL, derr) != 0 ||
         stage_wait_idle(s, 0, derr) != 0) {
-        seterr(err, "stage_move_wait: %s", derr);
+        rig_seterr(err, "stage_move_wait: %s", derr);
         return -1;
     }
     return 0;
@@ -565,7 +556,7 @@ struct settings_ctx {
 
 static void collect_setting(void *ctx, const char *line) {
     struct settings_ctx *c = ctx;
-    char perr[STAGE_ERR_LEN];
+    char perr[RIG_ERR_LEN];
     int n;
     double v;
     if (stage_parse_line(line, NULL) != STAGE_LINE_SETTING) return;
@@ -584,7 +575,7 @@ int stage_get_settings(stage *s, stage_setting *out, int max, int *n, char *err)
     struct settings_ctx c = {out, max, 0, 0};
     if (stage_command(s, "$$", 0, collect_setting, &c, err) != 0) return -1;
     if (c.bad) {
-        seterr(err, "stage_get_settings: %d malformed setting line(s) in the $$ dump", c.bad);
+        rig_seterr(err, "stage_get_settings: %d malformed setting line(s) in the $$ dump", c.bad);
         return -1;
     }
     *n = c.n;
@@ -594,7 +585,7 @@ int stage_get_settings(stage *s, stage_setting *out, int max, int *n, char *err)
 int stage_set_setting(stage *s, int n, double value, char *err) {
     char line[64], v[32];
     if (n < 0 || n > 9999) {
-        seterr(err, "stage_set_setting: setting number %d out of range", n);
+        rig_seterr(err, "stage_set_setting: setting number %d out of range", n);
         return -1;
     }
     snprintf(line, sizeof(line), "$%d=%s", n, stage_fmt_number(v, sizeof(v), value));
@@ -609,9 +600,9 @@ int stage_unlock(stage *s, char *err) {
 }
 
 int stage_feed_hold(stage *s, char *err) {
-    char derr[STAGE_ERR_LEN];
+    char derr[RIG_ERR_LEN];
     if (send_rt(s, RT_HOLD, derr) != 0) {
-        seterr(err, "stage_feed_hold: %s", derr);
+        rig_seterr(err, "stage_feed_hold: %s", derr);
         return -1;
     }
     return 0;
@@ -653,7 +644,7 @@ static int wait_alive(stage *s, int timeout_ms, char *err) {
 }
 
 int stage_reset(stage *s, char *err) {
-    char derr[STAGE_ERR_LEN];
+    char derr[RIG_ERR_LEN];
     int r;
     if (send_rt(s, RT_RESET, derr) != 0) goto fail;
     /* Bytes before the new banner belong to the old session. */
@@ -669,12 +660,12 @@ int stage_reset(stage *s, char *err) {
     if (strcmp(s->last.state, "Alarm") == 0) s->needs_unlock = 1;
     return 0;
 fail:
-    seterr(err, "stage_reset: %s", derr);
+    rig_seterr(err, "stage_reset: %s", derr);
     return -1;
 }
 
 int stage_recover(stage *s, int rehome, char *err) {
-    char derr[STAGE_ERR_LEN];
+    char derr[RIG_ERR_LEN];
     int alarm = s->last_alarm;
     if (stage_reset(s, derr) != 0) goto fail;
     if (alarm == 0) alarm = s->last_alarm;
@@ -698,12 +689,12 @@ int stage_recover(stage *s, int rehome, char *err) {
     if (stage_unlock(s, derr) != 0) goto fail;
     return 0;
 fail:
-    seterr(err, "stage_recover: %s", derr);
+    rig_seterr(err, "stage_recover: %s", derr);
     return -1;
 }
 
 int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
-    char why[STAGE_ERR_LEN], derr[STAGE_ERR_LEN];
+    char why[RIG_ERR_LEN], derr[RIG_ERR_LEN];
     int r;
 
     memset(s, 0, sizeof(*s));
@@ -740,7 +731,7 @@ int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
     if (strcmp(s->last.state, "Alarm") == 0) s->needs_unlock = 1;
     return 0;
 fail:
-    seterr(err, "stage_open(%s): %s", s->path, derr);
+    rig_seterr(err, "stage_open(%s): %s", s->path, derr);
     stage_close(s);
     return -1;
 }

@@ -102,7 +102,7 @@ int stage_parse_status(const char *line, const double *known_wco,
     st->substate = -1;
     st->buf_blocks = st->buf_bytes = -1;
     if (len < 3 || line[0] != '<' || line[len - 1] != '>') {
-        snprintf(err, STAGE_ERR_LEN, "stage_parse_status: not a status report");
+        rig_seterr(err, "stage_parse_status: not a status report");
         return -1;
     }
     p = line + 1;
@@ -161,7 +161,7 @@ int stage_parse_status(const char *line, const double *known_wco,
     }
     if (st->state[0] == '\0') goto bad;
     if (!st->has_mpos && !st->has_wpos) {
-        snprintf(err, STAGE_ERR_LEN, "stage_parse_status: no MPos or WPos in '%.80s'", line);
+        rig_seterr(err, "stage_parse_status: no MPos or WPos in '%.80s'", line);
         return -1;
     }
     /* MPos = WPos + WCO (GRBL's definition); the offset of this report wins
@@ -177,7 +177,7 @@ int stage_parse_status(const char *line, const double *known_wco,
     }
     return 0;
 bad:
-    snprintf(err, STAGE_ERR_LEN, "stage_parse_status: malformed report '%.80s'", line);
+    rig_seterr(err, "stage_parse_status: malformed report '%.80s'", line);
     return -1;
 }
 
@@ -202,7 +202,7 @@ int stage_parse_setting(const char *line, int *n, double *value, char *err) {
     *value = v;
     return 0;
 bad:
-    snprintf(err, STAGE_ERR_LEN, "stage_parse_setting: malformed setting '%.80s'", line);
+    rig_seterr(err, "stage_parse_setting: malformed setting '%.80s'", line);
     return -1;
 }
 

@@ -6,7 +6,8 @@
 #ifndef STAGE_PROTO_H
 #define STAGE_PROTO_H
 
-#define STAGE_ERR_LEN 256   /* size of every err[] buffer of this library */
+#include "rig_err.h"   /* err[] buffers: RIG_ERR_LEN bytes */
+
 #define STAGE_AXES 3
 
 /* What kind of line the controller sent. */

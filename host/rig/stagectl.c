@@ -82,7 +82,7 @@ int main(int argc, char **argv) {
         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     const char *port = "auto", *cmd;
     double feed = 0, xyz[3] = {0, 0, 0}, setn = 0, setv = 0;
     int rehome = 0, c, rc = 1, nargs;

@@ -100,7 +100,7 @@ static void fast_opts(stage_opts *o) {
 
 static void open_ok(stage *s, fake *f, const char *script) {
     stage_opts o;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     fast_opts(&o);
     fake_start(f, script);
     if (stage_open(s, f->pty, &o, err) != 0) fail_msg("stage_open: %s", err);
@@ -112,7 +112,7 @@ static void test_open_settings(void **state) {
     fake f;
     stage s;
     stage_setting set[8];
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     int n = 0;
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\n"
@@ -133,7 +133,7 @@ static void test_open_settings(void **state) {
 static void test_move_wait_idle(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double xyz[3] = {10, -5.5, 0.125};
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\n"
@@ -152,7 +152,7 @@ static void test_move_wait_idle(void **state) {
 static void test_error_reply(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double xyz[3] = {1, 2, 3};
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nexpect G90 G1 F90 X1 Y2 Z3\nsend error:9\nend\n");
@@ -167,7 +167,7 @@ static void test_error_reply(void **state) {
 static void test_alarm_then_recover_rehome(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double xyz[3] = {30, 0, 0};
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\n"
@@ -191,7 +191,7 @@ static void test_alarm_then_recover_rehome(void **state) {
 static void test_recover_needs_rehome(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nsend ALARM:3\nstate <Alarm|MPos:0,0,0>\n"
             "expect_rt 18\n" BANNER "polls 1\nend\n");
@@ -204,7 +204,7 @@ static void test_recover_needs_rehome(void **state) {
 static void test_recover_soft_limit_unlocks(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double xyz[3] = {400, 0, 0};
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nexpect G90 G0 X400 Y0 Z0\nsend ALARM:2\n"
@@ -222,7 +222,7 @@ static void test_recover_soft_limit_unlocks(void **state) {
 static void test_reply_timeout(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     long long t0;
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nexpect $X\nend\n");
@@ -237,7 +237,7 @@ static void test_reply_timeout(void **state) {
 static void test_late_reply_not_taken_for_next(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     (void)state;
     /* The ok of a timed-out command arrives late; the next command must
      * wait for its own reply (error:9 here), not take the stale ok. */
@@ -254,7 +254,7 @@ static void test_late_reply_not_taken_for_next(void **state) {
 static void test_garbage_ignored(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     (void)state;
     open_ok(&s, &f, "garbage 40\n" BANNER "garbage 700\npolls 1\n"
             "expect $X\ngarbage 300\nraw 00ff0d0a\nsend <Idle|MPos:bogus>\n"
@@ -267,7 +267,7 @@ static void test_garbage_ignored(void **state) {
 static void test_port_vanishes(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double xyz[3] = {1, 1, 1};
     long long t0;
     (void)state;
@@ -309,7 +309,7 @@ static void test_dead_controller(void **state) {
     fake f;
     stage s;
     stage_opts o;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     long long t0;
     (void)state;
     fast_opts(&o);
@@ -325,7 +325,7 @@ static void test_dead_controller(void **state) {
 static void test_reset_during_command(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double xyz[3] = {5, 5, 5};
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nexpect G90 G0 X5 Y5 Z5\n" BANNER "end\n");
@@ -339,7 +339,7 @@ static void test_reset_during_command(void **state) {
 static void test_wait_idle_deadline(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     long long t0;
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nstate <Run|MPos:1.000,0.000,0.000|FS:720,0>\nend\n");
@@ -354,7 +354,7 @@ static void test_wait_idle_deadline(void **state) {
 static void test_feed_hold_and_reset(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nexpect_rt 21\nstate <Hold:0|MPos:1,0,0>\n"
             "expect_rt 18\nsend ALARM:3\n" BANNER "send [MSG:'$H'|'$X' to unlock]\n"
@@ -371,7 +371,7 @@ static void test_feed_hold_and_reset(void **state) {
 static void test_bad_lines_refused(void **state) {
     fake f;
     stage s;
-    char err[STAGE_ERR_LEN], big[100];
+    char err[RIG_ERR_LEN], big[100];
     (void)state;
     open_ok(&s, &f, BANNER "polls 1\nend\n");
     memset(big, 'G', sizeof(big) - 1);
@@ -386,7 +386,7 @@ static void test_bad_lines_refused(void **state) {
 static void test_open_missing_port(void **state) {
     stage s;
     stage_opts o;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     (void)state;
     fast_opts(&o);
     assert_int_equal(stage_open(&s, "/nonexistent/tty", &o, err), -1);

@@ -46,7 +46,7 @@ static void test_line_malformed(void **state) {
 
 static void test_status_mpos(void **state) {
     stage_status_report st;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     (void)state;
     assert_int_equal(stage_parse_status("<Run|MPos:10.000,-5.500,0.125|FS:720,0|Pn:XZ>", NULL, &st, err), 0);
     assert_string_equal(st.state, "Run");
@@ -63,7 +63,7 @@ static void test_status_mpos(void **state) {
 
 static void test_status_wpos_wco(void **state) {
     stage_status_report st;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     double wco[3] = {1, 2, 3};
     (void)state;
     /* WPos with the report's own WCO: MPos = WPos + WCO. */
@@ -84,7 +84,7 @@ static void test_status_wpos_wco(void **state) {
 
 static void test_status_substate_and_extra_axes(void **state) {
     stage_status_report st;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     (void)state;
     assert_int_equal(stage_parse_status("<Hold:1|MPos:0.000,0.000,0.000,9.000|F:100|Ov:100,100,100>", NULL, &st, err), 0);
     assert_string_equal(st.state, "Hold");
@@ -96,7 +96,7 @@ static void test_status_substate_and_extra_axes(void **state) {
 
 static void test_status_malformed(void **state) {
     stage_status_report st;
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     static const char *bad[] = {
         "", "<>", "<Idle>", "Idle|MPos:0,0,0", "<Idle|MPos:0,0>", "<Idle|MPos:0,0,x>",
         "<Idle|MPos:1e999,0,0>", "<Idle|MPos:nan,0,0>", "<|MPos:0,0,0>", "<Id1e|MPos:0,0,0>",
@@ -113,7 +113,7 @@ static void test_status_malformed(void **state) {
 }
 
 static void test_settings(void **state) {
-    char err[STAGE_ERR_LEN];
+    char err[RIG_ERR_LEN];
     int n;
     double v;
     (void)state;
@@ -133,7 +133,8 @@ static void test_settings(void **state) {
     assert_non_null(strstr(err, "stage_parse_setting"));
 }
 
-/* The texts are firmware/doc/*.csv's descriptions, generated at build time. */
+/* The texts are the descriptions of firmware/doc/error_codes.csv and
+ * alarm_codes.csv, generated at build time. */
 static void test_code_texts(void **state) {
     (void)state;
     assert_string_equal(stage_error_text(1), "G-code words consist of a letter and a value. Letter was not found.");
