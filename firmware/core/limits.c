@@ -41,8 +41,10 @@ void limits_soft_check(const float *target)
 {
   if (!system_check_travel_limits(target)) return;
   sys.soft_limit = 1;
-  // Stop smoothly if a cycle runs, then alarm: position is kept.
-  if (sys.state == STATE_CYCLE) {
+  // Stop smoothly if a cycle runs (or a hold is still slowing down), then
+  // drop the queued motion and alarm. No reset: the position is exact, so
+  // '$X' alone unlocks, as the alarm's text says (GRBL asks for a reset first).
+  if (sys.state & (STATE_CYCLE | STATE_HOLD)) {
     system_set_exec_state_flag(EXEC_FEED_HOLD);
     do {
       protocol_execute_realtime();
@@ -50,7 +52,12 @@ void limits_soft_check(const float *target)
       board_idle();
     } while (sys.state != STATE_IDLE && !(sys.suspend & SUSPEND_HOLD_COMPLETE));
   }
-  mc_reset();
+  plan_reset();
+  st_reset();
+  plan_sync_position();
+  sys.step_control = STEP_CONTROL_NORMAL_OP;
+  sys.suspend = SUSPEND_DISABLE;
+  sys.soft_limit = 0;
   system_set_exec_alarm(EXEC_ALARM_SOFT_LIMIT);
   protocol_execute_realtime();
 }

@@ -23,6 +23,12 @@
 static char line[LINE_BUFFER_SIZE];
 static uint8_t char_counter;
 static uint8_t line_flags;
+// The alarm that locked the machine, said again after a reset banner while
+// still locked, so a client that connects later learns whether unlocking is
+// safe (GRBL only says it once). Not again when the reset itself raised it
+// (ALARM:3 and the homing failures come just before the banner).
+static uint8_t alarm_kept;
+static uint8_t alarm_by_reset;
 
 static void protocol_exec_rt_system(void);
 
@@ -65,11 +71,14 @@ void protocol_reset(void)
     sys.state = STATE_ALARM;
   }
   if (sys.state & STATE_ALARM) {
+    if (alarm_kept && !alarm_by_reset) report_alarm_message(alarm_kept);
     report_feedback_message(MESSAGE_ALARM_LOCK);
     sys.state = STATE_ALARM;
   } else {
+    alarm_kept = 0;
     sys.state = STATE_IDLE;
   }
+  alarm_by_reset = 0;
 }
 
 static void protocol_execute_line(void)
@@ -164,7 +173,10 @@ static void protocol_exec_rt_system(void)
   if (rt_exec) {
     sys.state = STATE_ALARM;
     report_alarm_message(rt_exec);
-    if (rt_exec == EXEC_ALARM_HARD_LIMIT || rt_exec == EXEC_ALARM_SOFT_LIMIT || rt_exec == EXEC_ALARM_FAULT) {
+    alarm_kept = rt_exec;
+    alarm_by_reset = (sys_rt_exec_state & EXEC_RESET) != 0;
+    if (rt_exec == EXEC_ALARM_SOFT_LIMIT) report_feedback_message(MESSAGE_ALARM_LOCK);  // position kept: '$X' is safe
+    if (rt_exec == EXEC_ALARM_HARD_LIMIT || rt_exec == EXEC_ALARM_FAULT) {
       // Critical: position may be lost or the machine is unsafe; only reset continues.
       if (rt_exec == EXEC_ALARM_FAULT)
         report_feedback_message(sys_fault == FAULT_WATCHDOG ? MESSAGE_FAULT_WATCHDOG : MESSAGE_FAULT_INTERNAL);
@@ -178,6 +190,7 @@ static void protocol_exec_rt_system(void)
         board_idle();
       } while (bit_isfalse(sys_rt_exec_state, EXEC_RESET));
       sys_fault = 0;
+      alarm_by_reset = 0;
     }
     system_clear_exec_alarm();
   }

@@ -125,6 +125,7 @@ uint8_t system_execute_line(char *line)
           if (sys.state == STATE_ALARM) {
             report_feedback_message(MESSAGE_ALARM_UNLOCK);
             sys.state = STATE_IDLE;
+            gc_sync_position();   // a soft-limit alarm left the parser at the refused target
           }
           break;
       }

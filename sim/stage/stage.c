@@ -1,8 +1,8 @@
 /* stage.c: STEP/DIR integration, enable, limit switches, timing statistics.
- * Pin map (Arduino Uno + CNC shield, atmega328p):
- *   STEP X/Y/Z  PD2/PD3/PD4 (Uno D2-D4)   DIR X/Y/Z  PD5/PD6/PD7 (D5-D7)
- *   enable      PB0 (D8), active low       limits X/Y/Z PB1/PB2/PB3 (D9-D11),
- *   switches close to ground, so a pressed switch reads 0. */
+ * The pin map is the firmware's own (firmware/avr/pins.h, included below):
+ * Arduino Uno + CNC shield on an atmega328p, STEP X/Y/Z on PD2-PD4, DIR on
+ * PD5-PD7, enable on PB0 (active low), limits on PB1-PB3; switches close to
+ * ground, so a pressed switch reads 0. */
 #include <stdio.h>
 #include <string.h>
 #include <math.h>
@@ -11,18 +11,26 @@
 #include "sim_interrupts.h"
 #include "sim_cycle_timers.h"
 #include "stage.h"
+#include "pins.h"	/* firmware/avr/pins.h: the one pin map */
 
-/* data-space addresses of the atmega328p port registers */
-#define REG_PINB 0x23
-#define REG_DDRB 0x24
-#define REG_PORTB 0x25
-#define REG_DDRD 0x2a
-#define REG_PORTD 0x2b
+/* A port letter from pins.h as a character ('B', 'D'). */
+#define PIN_STR_(x) #x
+#define PIN_STR(x) PIN_STR_(x)
+#define PORT_CHAR(letter) (PIN_STR(letter)[0])
 
-#define STEP_BIT0 2	/* PD2 */
-#define DIR_BIT0 5	/* PD5 */
-#define ENABLE_BIT 0	/* PB0 */
-#define LIMIT_BIT0 1	/* PB1 */
+/* atmega328p data-space addresses: PINx, DDRx, PORTx in a row from PINB = 0x23 */
+#define REG_PIN(letter) (0x23 + 3 * (PORT_CHAR(letter) - 'B'))
+#define REG_DDR(letter) (REG_PIN(letter) + 1)
+#define REG_PORT(letter) (REG_PIN(letter) + 2)
+
+#define STEP_BIT0 X_STEP_BIT
+#define DIR_BIT0 X_DIR_BIT
+#define LIMIT_BIT0 X_LIMIT_BIT
+#define REG_STEP_DDR REG_DDR(STEP_PORT_LETTER)
+#define REG_DIR_PORT REG_PORT(DIR_PORT_LETTER)
+#define REG_ENABLE_DDR REG_DDR(ENABLE_PORT_LETTER)
+#define REG_ENABLE_PORT REG_PORT(ENABLE_PORT_LETTER)
+#define REG_LIMIT_PIN REG_PIN(LIMIT_PORT_LETTER)
 
 /* atmega328p timer registers (data space) for the CTC-compare-0 check */
 static const struct {
@@ -57,7 +65,7 @@ void stage_check_timer_traps(struct stage *s)
 int stage_enabled(const struct stage *s)
 {
 	const uint8_t *d = s->avr->data;
-	return (d[REG_DDRB] & (1 << ENABLE_BIT)) && !(d[REG_PORTB] & (1 << ENABLE_BIT));
+	return (d[REG_ENABLE_DDR] & (1 << ENABLE_BIT)) && !(d[REG_ENABLE_PORT] & (1 << ENABLE_BIT));
 }
 
 double stage_angle(const struct stage *s, int axis)
@@ -135,7 +143,7 @@ void stage_sync_limits(struct stage *s)
 		}
 		int level = a->limit_level_driven >= 0 ? a->limit_level_driven
 			    : (a->limit_enabled ? !a->limit_active : 1);
-		int bit = (s->avr->data[REG_PINB] >> (LIMIT_BIT0 + i)) & 1;
+		int bit = (s->avr->data[REG_LIMIT_PIN] >> (LIMIT_BIT0 + i)) & 1;
 		if (bit != level || a->limit_level_driven != level) {
 			a->limit_level_driven = level;
 			avr_raise_irq(s->limit_irq[i], (uint32_t)level);
@@ -168,7 +176,7 @@ static void step_hook(struct avr_irq_t *irq, uint32_t value, void *param)
 		min_update(&a->min_period, now - a->last_rise);
 	a->last_rise = now;
 
-	dir = (avr->data[REG_PORTD] >> (DIR_BIT0 + a->index)) & 1;
+	dir = (avr->data[REG_DIR_PORT] >> (DIR_BIT0 + a->index)) & 1;
 	if (dir != a->dir_level) {
 		/* DIR changes in this very write: no setup time at all */
 		a->dir_violations++;
@@ -178,7 +186,7 @@ static void step_hook(struct avr_irq_t *irq, uint32_t value, void *param)
 	}
 	a->dir_pending = 0;
 
-	if (!(avr->data[REG_DDRD] & (1 << (STEP_BIT0 + a->index))) || !stage_enabled(s)) {
+	if (!(avr->data[REG_STEP_DDR] & (1 << (STEP_BIT0 + a->index))) || !stage_enabled(s)) {
 		a->ignored++;
 		return;
 	}
@@ -237,9 +245,9 @@ int stage_attach(struct stage *s, avr_t *avr, char *err)
 	s->avr = avr;
 	for (int i = 0; i < STAGE_AXES; i++) {
 		struct stage_axis *a = &s->axis[i];
-		avr_irq_t *step = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), STEP_BIT0 + i);
-		avr_irq_t *dir = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), DIR_BIT0 + i);
-		s->limit_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), LIMIT_BIT0 + i);
+		avr_irq_t *step = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(PORT_CHAR(STEP_PORT_LETTER)), STEP_BIT0 + i);
+		avr_irq_t *dir = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(PORT_CHAR(DIR_PORT_LETTER)), DIR_BIT0 + i);
+		s->limit_irq[i] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(PORT_CHAR(LIMIT_PORT_LETTER)), LIMIT_BIT0 + i);
 		if (!step || !dir || !s->limit_irq[i]) {
 			snprintf(err, ERR_LEN, "avr_io_getirq: no port B/D pins on %s", avr->mmcu);
 			return -1;
