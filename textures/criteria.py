@@ -213,9 +213,7 @@ def tamura_checks(rgb):
 
 def uniqueness_check(rgb, step=3.0, progress=True):
     """Orientation uniqueness over the P1 range (textures.views)."""
-    tex = cv2.resize(rgb, (views.TEX_WIDTH, views.TEX_WIDTH // 2), interpolation=cv2.INTER_AREA) \
-        if rgb.shape[1] > views.TEX_WIDTH else rgb
-    u = views.uniqueness(srgb8_to_lab(tex).astype(np.float32), step=step, progress=progress)
+    u = views.uniqueness(views.camera_texture(rgb), step=step, progress=progress)
     near, far = u["near"], u["far"]
     fmt = lambda p: "(" + ", ".join(f"{v:g}" for v in p) + ")"
     return {"id": "uniqueness", "name": "orientation uniqueness", "value": round(u["U"], 3), "unit": "x step",

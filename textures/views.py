@@ -33,7 +33,7 @@ from sim.pose import euler_to_matrix, geodesic_deg
 
 VIEW_PX = 32           # view image side in pixels
 DISC_FRAC = 0.95       # pixels within this fraction of the radius (grazing limb left out)
-TEX_WIDTH = 256        # the texture is area-resampled to this width before sampling
+TEX_MAX_WIDTH = 4096   # wider textures are reduced by a whole factor (memory); narrower ones stay as they are
 MIN_SEP_DEG = 3.0      # pairs at least this far apart (geodesic) are compared
 FAR_SEP_DEG = 9.0      # ... and the "far" variant
 SEP_TOL_DEG = 0.05     # grid pairs one step apart may be a hair under 3 degrees
@@ -74,6 +74,67 @@ def sample_texture(tex, lat, lon):
     top = tex[v0c, u0m] * (1 - fu) + tex[v0c, u1m] * fu
     bot = tex[v1c, u0m] * (1 - fu) + tex[v1c, u1m] * fu
     return top * (1 - fv) + bot * fv
+
+
+def _box_wrap(a, k):
+    """Mean over k (odd) neighbouring columns of a [rows, w], wrapping around (longitude)."""
+    m = k // 2
+    if m == 0:
+        return a
+    p = np.concatenate([a[:, -m:], a, a[:, :m]], 1)
+    c = np.concatenate([np.zeros((len(a), 1)), np.cumsum(p, 1)], 1)
+    return (c[:, k:] - c[:, :-k]) / k
+
+
+def _box_clamp(a, k):
+    """Mean over k (odd) neighbouring rows of a [h, w], the edge rows repeated (poles)."""
+    m = k // 2
+    if m == 0:
+        return a
+    p = np.concatenate([np.repeat(a[:1], m, 0), a, np.repeat(a[-1:], m, 0)], 0)
+    c = np.concatenate([np.zeros((1, a.shape[1])), np.cumsum(p, 0)], 0)
+    return (c[k:] - c[:-k]) / k
+
+
+def _odd(x, cap):
+    """Nearest odd whole number to x, at least 1 and at most cap (itself odd)."""
+    return int(min(cap, max(1, 2 * int(np.floor(x / 2.0)) + 1)))
+
+
+def camera_texture(rgb, size=VIEW_PX):
+    """Lab texture [h, w, 3] float32 of an sRGB uint8 texture as view pixels of `size` see it.
+
+    A camera pixel integrates light: every texel becomes the mean, in linear
+    light (CIE XYZ), over a box the size of one view pixel at the disc centre
+    (2 / size radians of arc), stretched by 1 / cos(latitude) along the ring
+    so that it covers the same arc on the sphere; then Lab. The boxes are whole
+    texels, centred, and wrap in longitude, so a longitude period of whole
+    texels survives exactly (twins stay twins, U = 0). Textures wider than
+    TEX_MAX_WIDTH are first averaged over f x f blocks (f the smallest whole
+    factor that fits).
+    """
+    from skimage.color import rgb2xyz, xyz2lab
+    import cv2
+    h, w = rgb.shape[:2]
+    f = int(np.ceil(w / TEX_MAX_WIDTH))
+    xyz = rgb2xyz(np.asarray(rgb, np.float64) / 255.0)
+    if f > 1:
+        xyz = cv2.resize(xyz, (w // f, h // f), interpolation=cv2.INTER_AREA)
+        h, w = xyz.shape[:2]
+    pitch = np.degrees(2.0 / size)                     # view pixel footprint at the disc centre, degrees
+    lat = 90.0 - (np.arange(h) + 0.5) / h * 180.0
+    k_lat = _odd(pitch / (180.0 / h), h if h % 2 else h - 1)
+    k_lon = np.array([_odd(pitch / max(np.cos(np.radians(la)), 1e-6) / (360.0 / w), w if w % 2 else w - 1)
+                      for la in lat])
+    out = np.empty_like(xyz)
+    for c in range(3):
+        ch = xyz[..., c]
+        rows = np.empty_like(ch)
+        for k in np.unique(k_lon):
+            sel = k_lon == k
+            rows[sel] = _box_wrap(ch[sel], k)
+        out[..., c] = _box_clamp(rows, k_lat)
+    return xyz2lab(np.clip(out, 0.0, None)).astype(np.float32)
 
 
 def pose_grid(limit=30.0, step=3.0):

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from textures import cli, generate
-from textures.criteria import area_ratio, check_texture, colour_difference, stripe_spacing
+from textures.criteria import area_ratio, check_texture, colour_difference, stripe_spacing, uniqueness_check
 from textures.palette import find_palette
 
 from texhelpers import TEST_STEP, bw_image
@@ -96,6 +96,29 @@ def test_longitude_period_45_fails_uniqueness_with_poses_45_degrees_apart():
     far = u["scan"]["far"]
     assert far["ratio"] < 0.01
     assert abs(far["geodesic_deg"] - 45.0) < 1.0
+
+
+def _period30(block, width=768, seed=0):
+    """Random black/white blocks of `block` texels in a tile 30 degrees wide (64 texels at width 768),
+    repeated 12 times around the sphere: views 30 degrees apart about the pole are exact twins."""
+    h, tile = width // 2, width // 12
+    rng = np.random.default_rng(seed)
+    cells = rng.random((-(-h // block), -(-tile // block))) < 0.5
+    tile_mask = np.kron(cells, np.ones((block, block), bool))[:h, :tile]
+    return bw_image(np.tile(tile_mask, (1, 12)))
+
+
+@pytest.mark.parametrize("block,kind", [(2, "fine"), (16, "coarse")])
+def test_longitude_period_30_gives_u_zero(block, kind):
+    """A 30 degree period must survive the scan: fine blocks (2 texels, about 1 degree) once passed with
+    U = 0.27 and coarse ones got U = 0.13, because the texture was shrunk so that 30 degrees was no whole
+    number of texels; views as the camera sees them make the twins exact at any grain."""
+    u = uniqueness_check(_period30(block), step=3.0, progress=False)    # 30 = 10 steps of 3 degrees
+    assert u["passed"] is False, (kind, u["details"])
+    assert u["value"] == 0.0, (kind, u["details"])
+    near = u["scan"]["near"]
+    assert near["pose_a"][0] == near["pose_b"][0] and near["pose_a"][2] == near["pose_b"][2]
+    assert abs(near["geodesic_deg"] - 30.0) < 0.1
 
 
 def test_cli_fails_symmetric_texture_with_exit_1(tmp_path):

@@ -87,3 +87,23 @@ def test_candidate_search_matches_brute_force():
         ok = tr <= 1 + 2 * np.cos(np.radians(sep - views.SEP_TOL_DEG))
         dd = np.where(ok & ~np.eye(n, dtype=bool), d, np.inf)
         assert abs(got[sep][0] - dd.min()) < 1e-3 * max(1.0, dd.min())
+
+
+def test_camera_texture_keeps_a_whole_texel_period_and_averages_light():
+    """The views' texture keeps a period of whole texels exactly and is a mean of light, not of Lab."""
+    from textures.palette import srgb8_to_lab
+    rng = np.random.default_rng(3)
+    tile = (rng.random((96, 16)) < 0.5)
+    rgb = np.where(np.tile(tile, (1, 12))[..., None], 0, 255).astype(np.uint8).repeat(3, 2)   # 192 x 96
+    lab = views.camera_texture(rgb)
+    assert lab.shape == (96, 192, 3) and lab.dtype == np.float32
+    assert np.abs(lab - np.roll(lab, 16, axis=1)).max() < 1e-3
+    # About half black, half white in every footprint near the equator (boxes of an odd number of
+    # one-texel stripes): about half the light, L* near 76, where a mean of Lab would give 50.
+    stripes = np.zeros((512, 1024, 3), np.uint8)
+    stripes[:, ::2] = 255
+    mid = views.camera_texture(stripes)[256, :, 0]
+    assert np.all(np.abs(mid - 76.1) < 4.0), (mid.min(), mid.max())
+    # A uniform texture stays itself.
+    flat = np.full((64, 128, 3), (0, 128, 3), np.uint8)
+    assert np.allclose(views.camera_texture(flat), srgb8_to_lab(flat), atol=1e-3)
