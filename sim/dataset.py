@@ -228,6 +228,9 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
 
     Returns the record written to OUT/dataset.json.
     """
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise DatasetError(f"{out}: exists and is not a folder; --out names the dataset folder "
+                           f"(a new or empty one, or a dataset to resume)")
     if not os.path.isfile(cfg.texture):
         raise DatasetError(f"{cfg.texture}: texture file not found")
     from sim.render import load_texture
@@ -254,11 +257,14 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
             raise DatasetError(f"{out} is not empty and has no {RECORD}: not a dataset folder; "
                                f"choose an empty or new --out")
         created = None
-    os.makedirs(out, exist_ok=True)
-    for split in SPLITS:
-        if settings["counts"][split]:
-            os.makedirs(os.path.join(out, split), exist_ok=True)
-            remove_stale_temporaries(os.path.join(out, split))
+    try:
+        os.makedirs(out, exist_ok=True)
+        for split in SPLITS:
+            if settings["counts"][split]:
+                os.makedirs(os.path.join(out, split), exist_ok=True)
+                remove_stale_temporaries(os.path.join(out, split))
+    except OSError as e:   # a path through a file, no permission, a split name taken by a file
+        raise DatasetError(f"{e.filename}: cannot create the dataset folder ({e.strerror})") from None
 
     record = {
         "format": FORMAT,

@@ -115,6 +115,20 @@ def test_refuses_to_resume_with_other_arguments(tmp_path, texture_png, small_cam
     assert r.returncode != 0 and "not a dataset folder" in r.stderr
 
 
+def test_out_that_is_a_file_is_a_named_error_exit_2(tmp_path, texture_png):
+    """--out naming an existing file (or a path through one): a message naming it, exit 2, no traceback,
+    the file untouched."""
+    f = tmp_path / "notes.txt"
+    f.write_text("mine")
+    for out in (f, f / "ds"):
+        r = run_sim("dataset", "--texture", texture_png, "--out", str(out), "--quiet", *SMALL, check=False)
+        assert r.returncode == 2, r.stderr
+        assert str(f) in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert "exists and is not a folder" in run_sim("dataset", "--texture", texture_png, "--out", str(f),
+                                                   "--quiet", *SMALL, check=False).stderr
+    assert f.read_text() == "mine"
+
+
 def test_same_seed_same_bytes_any_worker_count(tmp_path, texture_png, small_camera_json):
     common = ["--texture", texture_png, "--camera", small_camera_json, "--quiet", "--randomize", *SMALL]
     run_sim("dataset", *common, "--out", str(tmp_path / "a"), "--workers", "1")
