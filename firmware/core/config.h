@@ -8,7 +8,14 @@
 #define Z_AXIS 2
 
 #define BAUD_RATE 115200UL     // GRBL 1.1 senders assume it
-#define RX_BUFFER_SIZE 128     // character-counting senders assume 128 (GRBL)
+#define RX_BUFFER_SIZE 128     // advertised ([OPT:..,128]): character-counting senders assume 128 (GRBL)
+// Room behind the advertised buffer. GRBL's ring holds 127 of its 128, and
+// real senders overfill it: some count all 128, some send '$G', '$#' or '$$'
+// outside their count (a well-known web sender polls '$G' twice a second).
+// The ring takes one more full line (80 + CR LF) and a few such commands, so
+// none of those bytes is lost; 'Bf:' still reports against the 128.
+#define RX_HEADROOM 96
+#define RX_RING_SIZE (RX_BUFFER_SIZE + RX_HEADROOM)
 #define TX_BUFFER_SIZE 64      // replies are short; a status report fits twice
 #define LINE_BUFFER_SIZE 81    // 80 characters + NUL, as GRBL
 
@@ -63,7 +70,7 @@
 #if N_AXIS != 3
 #error "the pin map and reports are written for three axes"
 #endif
-#if RX_BUFFER_SIZE > 255 || TX_BUFFER_SIZE > 255
+#if RX_RING_SIZE > 255 || TX_BUFFER_SIZE > 255
 #error "serial ring indices are 8-bit"
 #endif
 #if BLOCK_BUFFER_SIZE < 2 || SEGMENT_BUFFER_SIZE < 2

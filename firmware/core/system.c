@@ -103,13 +103,15 @@ uint8_t system_execute_line(char *line)
       if (sys.state != STATE_IDLE && sys.state != STATE_JOG) return STATUS_IDLE_ERROR;
       if (line[2] != '=') return STATUS_INVALID_STATEMENT;
       return gc_execute_line(line + 3, 1);
-    case '$': case 'G': case 'C': case 'X':
+    case '$': case 'G': case 'C': case 'X': case '#':
       if (line[2] != 0) return STATUS_INVALID_STATEMENT;
       switch (line[1]) {
-        case '$':
-          if (sys.state & (STATE_CYCLE | STATE_HOLD)) return STATUS_IDLE_ERROR;
-          report_grbl_settings();
-          break;
+        // '$$', '$#' and '$G' only read, so they answer mid-stream too:
+        // senders poll them while streaming (GRBL refuses '$$' and '$#'
+        // with error:8 unless idle). A long reply keeps the step segments
+        // prepared while it waits for the UART (serial_write).
+        case '$': report_grbl_settings(); break;
+        case '#': return report_ngc_parameters();
         case 'G': report_gcode_modes(); break;
         case 'C':
           if (sys.state == STATE_CHECK_MODE) {
@@ -137,9 +139,6 @@ uint8_t system_execute_line(char *line)
       protocol_buffer_synchronize();
       if (sys.abort) return STATUS_OK;
       switch (line[1]) {
-        case '#':
-          if (line[2] != 0) return STATUS_INVALID_STATEMENT;
-          return report_ngc_parameters();
         case 'H': {
           if (bit_isfalse(settings.flags, BITFLAG_HOMING_ENABLE)) return STATUS_SETTING_DISABLED;
           uint8_t mask = HOMING_CYCLE_MASK;

@@ -3,6 +3,8 @@
 //
 //   > TEXT        send TEXT and a newline, run until quiet
 //   >> TEXT       send TEXT and a newline, run only until it is read (motion goes on)
+//   >+ TEXT       put TEXT and a newline into the receive ring at once, whatever room
+//                 is left (a sender that overfills); nothing runs (then "= run" or ">")
 //   >! HEX ...    send raw bytes (real-time commands, control bytes), run until quiet
 //   >@ MS HEX     deliver a raw byte at MS simulated milliseconds from now (then use "= run")
 //   < TEXT        the next reply line is exactly TEXT
@@ -111,6 +113,10 @@ static void run_file(const char *path)
       h_send_bytes("\n", 1);
       for (int i = 0; i < 1000 && serial_get_rx_buffer_available() < RX_BUFFER_SIZE - 1; i++) protocol_poll();
       protocol_poll();
+    }
+    else if (!strncmp(line, ">+ ", 3)) {
+      for (const char *p = line + 3; *p; p++) serial_rx_isr((uint8_t)*p);
+      serial_rx_isr('\n');
     }
     else if (!strncmp(line, "> ", 2) || !strcmp(line, ">")) { check_all_matched(); h_send(line[1] ? line + 2 : ""); }
     else if (!strncmp(line, "<~ ", 3)) {
