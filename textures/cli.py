@@ -50,11 +50,14 @@ def get_args_parser():
                        description="Write <name>.obj, <name>.mtl and the texture PNG: the renderer's "
                                    "own UV sphere mesh at the given diameter, in millimetres.")
     e.add_argument("--texture", required=True, metavar="PNG", help="equirectangular PNG texture")
-    e.add_argument("--diameter", required=True, type=float, metavar="MM", help="sphere diameter in mm")
+    e.add_argument("--diameter", required=True, type=float, metavar="MM",
+                   help="sphere diameter in mm (finite, > 0, at most 10000)")
     e.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
-    e.add_argument("--lat-segments", type=int, default=180, help="rings of latitude of the mesh")
-    e.add_argument("--lon-segments", type=int, default=360, help="segments of longitude of the mesh")
-    e.add_argument("--name", default=None, help="base name of the OBJ and MTL (default: <texture>_sphere)")
+    e.add_argument("--lat-segments", type=int, default=180, help="rings of latitude of the mesh (2..720)")
+    e.add_argument("--lon-segments", type=int, default=360, help="segments of longitude of the mesh (3..1440)")
+    e.add_argument("--name", default=None,
+                   help="base name of the OBJ and MTL, a plain file name written inside --out "
+                        "(default: <texture>_sphere)")
     return p
 
 
@@ -130,21 +133,21 @@ def cmd_check(args):
 
 def cmd_export(args):
     """Write the printable sphere."""
-    from textures.export import export_sphere
+    from textures.export import ExportError, check_args, export_sphere
     from textures.textureio import TextureError, load_texture
     try:
+        check_args(args.diameter, args.lat_segments, args.lon_segments, args.name)
         load_texture(args.texture, require_png=True)
-    except TextureError as e:
+    except (ExportError, TextureError) as e:
         print(f"textures export-sphere: {e}", file=sys.stderr)
         return EXIT_USAGE
-    if not args.diameter > 0:
-        print(f"textures export-sphere: --diameter {args.diameter}: must be positive (mm)", file=sys.stderr)
+    try:
+        paths = export_sphere(args.texture, args.diameter, args.out,
+                              args.lat_segments, args.lon_segments, args.name)
+    except ExportError as e:
+        print(f"textures export-sphere: {e}", file=sys.stderr)
         return EXIT_USAGE
-    if args.lat_segments < 2 or args.lon_segments < 3:
-        print("textures export-sphere: need --lat-segments >= 2 and --lon-segments >= 3", file=sys.stderr)
-        return EXIT_USAGE
-    for path in export_sphere(args.texture, args.diameter, args.out,
-                              args.lat_segments, args.lon_segments, args.name):
+    for path in paths:
         print(path)
     return EXIT_OK
 

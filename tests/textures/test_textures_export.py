@@ -61,3 +61,48 @@ def test_export_rejects_non_png_and_bad_diameter(tmp_path):
     with redirect_stderr(err):
         rc = cli.main(["export-sphere", "--texture", str(png), "--diameter", "-1", "--out", str(tmp_path / "o")])
     assert rc == 2
+
+
+def _export(*argv):
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        rc = cli.main(["export-sphere", *argv])
+    return rc, out.getvalue(), err.getvalue()
+
+
+def test_export_validates_diameter_name_and_segments(tmp_path):
+    """Each bad value: exit 2, a message naming the option, nothing written (no NaN vertices, no file
+    outside --out, no MemoryError)."""
+    png = tmp_path / "t.png"
+    Image.fromarray(np.zeros((64, 128, 3), np.uint8)).save(png)
+    out = tmp_path / "work" / "out"
+    base = ["--texture", str(png), "--out", str(out)]
+    cases = [
+        (["--diameter", "inf"], "--diameter"), (["--diameter", "nan"], "--diameter"),
+        (["--diameter=-inf"], "--diameter"), (["--diameter", "0"], "--diameter"),
+        (["--diameter", "1e300"], "--diameter"),
+        (["--diameter", "40", "--name", "../../x"], "--name"), (["--diameter", "40", "--name", "/tmp/x"], "--name"),
+        (["--diameter", "40", "--name", ".."], "--name"), (["--diameter", "40", "--name", "a b"], "--name"),
+        (["--diameter", "40", "--name", ""], "--name"), (["--diameter", "40", "--name", "t\u00ebx"], "--name"),
+        (["--diameter", "40", "--lat-segments", "100000"], "--lat-segments"),
+        (["--diameter", "40", "--lat-segments", "1"], "--lat-segments"),
+        (["--diameter", "40", "--lon-segments", "100000"], "--lon-segments"),
+        (["--diameter", "40", "--lon-segments", "2"], "--lon-segments"),
+    ]
+    for extra, opt in cases:
+        rc, _, err = _export(*base, *extra)
+        assert rc == 2 and opt in err and "Traceback" not in err, (extra, err)
+    assert not (tmp_path / "work").exists() and not (tmp_path / "x.obj").exists()
+
+
+def test_export_default_name_from_an_awkward_texture_name(tmp_path):
+    """A texture called 'my tëx.png' gives plain OBJ/MTL names: the MTL must be able to name its PNG."""
+    png = tmp_path / "my t\u00ebx.png"
+    Image.fromarray(np.zeros((64, 128, 3), np.uint8)).save(png)
+    out = tmp_path / "o"
+    rc, stdout, err = _export("--texture", str(png), "--out", str(out), "--diameter", "40",
+                              "--lat-segments", "4", "--lon-segments", "8")
+    assert rc == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["my_t_x_sphere.mtl", "my_t_x_sphere.obj",
+                                                     "my_t_x_sphere.png"]
+    assert "map_Kd my_t_x_sphere.png" in (out / "my_t_x_sphere.mtl").read_text()
