@@ -1,0 +1,154 @@
+"""Scene families of the evaluation: what each frame of a family may look like, drawn from a seed.
+
+- `clean`: the reference camera, uniform dark grey backdrop, one light at
+  the camera (a headlight) and an ambient term, a faint sheen; nothing else.
+- `shifts`: what changes between a render and a camera without a rig:
+  1-3 lights from anywhere in front, ambient and exposure levels, sheen
+  (specular 0-0.35, exponent 8-80), camera distance +-10 %, the sphere off
+  centre (a principal-point shift, anywhere that keeps it in the frame),
+  Gaussian blur, read and shot noise, gamma 0.8-1.25; uniform backdrop.
+- `rig`: `shifts` plus a rig's scene: a round post under the sphere (dark,
+  grey or metal), backdrops of any brightness (flat, gradient, lab
+  clutter), vignetting, JPEG.
+- `rig-unseen`: `shifts` plus what the training scenes never show: a square
+  post of another colour, a fork or a flat holder from the left, right or
+  top (hiding up to 15 % of the outline), photo-like smooth noise, stripes,
+  checkerboards, near-black and near-white backdrops, defocus (disc) blur,
+  vignetting, JPEG. The lens distortion comes from the camera file.
+Each frame's scene depends only on (family, seed, index), so frames can be
+drawn in any order or in parallel and drawn again identically.
+"""
+import math
+
+import numpy as np
+
+from . import backgrounds, render
+
+FAMILIES = ("clean", "shifts", "rig", "rig-unseen")
+_FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES)}
+MAX_HIDDEN_RIM = 0.15
+POSE_RANGE = 30.0
+
+
+def frame_rng(family, seed, index):
+    return np.random.default_rng([_FAMILY_ID[family], int(seed), int(index)])
+
+
+def _pose(rng):
+    """Uniform in [-30, 30] per axis, to the 3 decimals a file name can hold."""
+    pose = [round(float(v), 3) for v in rng.uniform(-POSE_RANGE, POSE_RANGE, 3)]
+    return [0.0 if v == 0 else v for v in pose]
+
+
+def _light(rng, max_angle_deg):
+    """A light from within `max_angle_deg` of the camera axis (direction: toward the light)."""
+    th = math.radians(rng.uniform(0, max_angle_deg))
+    ph = rng.uniform(0, 2 * math.pi)
+    return [math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)]
+
+
+def _clean(rng, cam):
+    return {"pose": _pose(rng), "distance_mm": cam.distance_mm, "shift_px": [0.0, 0.0],
+            "background": {"kind": "uniform", "colour": [0.25, 0.25, 0.27]},
+            "mount": None,
+            "lights": [{"direction": [0.0, 0.0, 1.0], "intensity": 0.65, "colour": [1.0, 1.0, 1.0]}],
+            "ambient": 0.3, "sheen": {"specular": 0.05, "power": 30.0},
+            "exposure": 1.0, "vignetting": 0.0, "blur": None, "noise": None, "gamma": 1.0, "jpeg": 0,
+            "seed": int(rng.integers(0, 2**31))}
+
+
+def _shifts(rng, cam):
+    s = _clean(rng, cam)
+    s["distance_mm"] = float(cam.distance_mm * rng.uniform(0.9, 1.1))
+    r = cam.at(distance_mm=s["distance_mm"]).radius_px()
+    room_u = max(0.0, cam.width / 2 - r - 6)
+    room_v = max(0.0, cam.height / 2 - r - 6)
+    s["shift_px"] = [float(rng.uniform(-room_u, room_u)), float(rng.uniform(-room_v, room_v))]
+    n = int(rng.integers(1, 4))
+    total = rng.uniform(0.5, 0.9)
+    share = rng.dirichlet(np.ones(n))
+    s["lights"] = [{"direction": _light(rng, 60), "intensity": float(total * share[i]),
+                    "colour": [float(c) for c in np.clip(1 + rng.normal(0, 0.04, 3), 0.85, 1.15)]}
+                   for i in range(n)]
+    s["ambient"] = float(rng.uniform(0.2, 0.5))
+    s["sheen"] = {"specular": float(rng.uniform(0, 0.35)), "power": float(rng.uniform(8, 80))}
+    s["exposure"] = float(rng.uniform(0.8, 1.2))
+    s["blur"] = {"kind": "gauss", "px": float(rng.uniform(0, 1.0))}
+    s["noise"] = {"read": float(rng.uniform(0, 4)), "shot": float(rng.uniform(0, 0.5))}
+    s["gamma"] = float(rng.uniform(0.8, 1.25))
+    level = rng.uniform(0.12, 0.45)
+    s["background"] = {"kind": "uniform",
+                       "colour": [float(np.clip(level + t, 0, 1)) for t in rng.normal(0, 0.03, 3)]}
+    return s
+
+
+_DARK_COLOURS = ([0.08, 0.08, 0.08], [0.3, 0.3, 0.32], [0.55, 0.56, 0.58], [0.15, 0.14, 0.13])
+_OTHER_COLOURS = ([0.15, 0.3, 0.75], [0.75, 0.15, 0.12], [0.85, 0.7, 0.15], [0.9, 0.9, 0.88],
+                  [0.55, 0.38, 0.2], [0.2, 0.6, 0.3])
+
+
+def _mount_ok(scene, cam):
+    return render.hidden_rim_fraction(scene, cam) <= MAX_HIDDEN_RIM
+
+
+def _rig(rng, cam):
+    s = _shifts(rng, cam)
+    kind = str(rng.choice(["uniform", "gradient", "clutter"]))
+    s["background"] = backgrounds.draw(kind, rng, cam.width, cam.height)
+    for _ in range(20):
+        s["mount"] = {"type": "post", "shape": "cylinder", "size_mm": float(rng.uniform(2.5, 7.0)),
+                      "tilt_x_deg": float(rng.uniform(-10, 10)), "tilt_z_deg": float(rng.uniform(-5, 5)),
+                      "colour": list(_DARK_COLOURS[rng.integers(len(_DARK_COLOURS))]),
+                      "specular": float(rng.uniform(0.05, 0.5)), "power": float(rng.uniform(10, 60))}
+        if _mount_ok(s, cam):
+            break
+    s["vignetting"] = float(rng.uniform(0, 0.4))
+    s["jpeg"] = int(rng.integers(60, 96)) if rng.random() < 0.8 else 0
+    return s
+
+
+def _unseen_mount(rng):
+    kind = str(rng.choice(["post", "fork", "holder"]))
+    colour = list(_OTHER_COLOURS[rng.integers(len(_OTHER_COLOURS))])
+    common = {"colour": colour, "specular": float(rng.uniform(0.05, 0.4)), "power": float(rng.uniform(10, 60))}
+    side = float(rng.choice([0.0, 90.0, 180.0]) + rng.uniform(-15, 15))
+    if kind == "post":
+        return {"type": "post", "shape": "box", "size_mm": float(rng.uniform(2.5, 6.0)),
+                "turn_deg": float(rng.uniform(0, 90)), "tilt_x_deg": float(rng.uniform(-10, 10)),
+                "tilt_z_deg": float(rng.uniform(-8, 8)), **common}
+    if kind == "fork":
+        return {"type": "fork", "from_deg": side, "prong_mm": float(rng.uniform(1.2, 3.0)),
+                "spread_mm": float(rng.uniform(5, 12)), "depth_mm": float(rng.uniform(-5, 10)),
+                "bar_mm": float(rng.uniform(8, 25)), **common}
+    return {"type": "holder", "from_deg": side, "width_mm": float(rng.uniform(4, 14)),
+            "thick_mm": float(rng.uniform(2, 6)), "depth_mm": float(rng.uniform(-4, 12)), **common}
+
+
+def _rig_unseen(rng, cam):
+    s = _shifts(rng, cam)
+    kind = str(rng.choice(["noise", "stripes", "checker", "extreme"]))
+    if kind == "extreme":
+        level = rng.uniform(0.0, 0.06) if rng.random() < 0.5 else rng.uniform(0.92, 1.0)
+        s["background"] = {"kind": "gradient", "a": [float(level)] * 3,
+                           "b": [float(np.clip(level + rng.normal(0, 0.03), 0, 1))] * 3,
+                           "angle_deg": float(rng.uniform(0, 360))}
+    else:
+        s["background"] = backgrounds.draw(kind, rng, cam.width, cam.height)
+    for _ in range(20):
+        s["mount"] = _unseen_mount(rng)
+        if _mount_ok(s, cam):
+            break
+    s["vignetting"] = float(rng.uniform(0, 0.5))
+    s["blur"] = {"kind": "disc", "px": float(rng.uniform(0, 1.5))}
+    s["jpeg"] = int(rng.integers(50, 96)) if rng.random() < 0.8 else 0
+    return s
+
+
+_DRAW = {"clean": _clean, "shifts": _shifts, "rig": _rig, "rig-unseen": _rig_unseen}
+
+
+def draw_scene(family, seed, index, cam):
+    """The scene of frame `index` of `family` for `seed` (a JSON-ready dict, render.render's input)."""
+    if family not in _DRAW:
+        raise ValueError(f"unknown family {family!r} (valid: {', '.join(FAMILIES)})")
+    return _DRAW[family](frame_rng(family, seed, index), cam)

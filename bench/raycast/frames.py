@@ -1,0 +1,106 @@
+"""A folder of frames of one family: <x>_<y>_<z>.png plus truth.jsonl (the shared contract).
+
+truth.jsonl has one JSON line per frame, in index order:
+{"file": "x_y_z.png", "pose": [x, y, z], "circle": [cx, cy, r], "scene": {...}}
+with the circle in continuous pixels of the undistorted image and the scene
+the dict that `render.render` drew the frame from (plus "hidden_rim", the
+share of the outline a mount hides). params.json records what made the
+folder; a folder with the same params.json is complete and is reused.
+"""
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+
+import cv2
+
+from . import families, render
+
+
+def angle_text(v):
+    """A name's angle: optional '-', integer part, optional '.' and 1 to 3 digits (docs/conventions.md)."""
+    text = f"{v:.3f}".rstrip("0").rstrip(".")
+    return "0" if text in ("-0", "") else text
+
+
+def frame_name(pose):
+    return "_".join(angle_text(v) for v in pose) + ".png"
+
+
+def _write_atomic(path, data):
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def make_frame(family, seed, index, cam, tex, supersample=4):
+    """(file name, PNG bytes, truth dict) of one frame."""
+    scene = families.draw_scene(family, seed, index, cam)
+    img = render.render(scene, cam, tex, supersample)
+    ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    name = frame_name(scene["pose"])
+    scene["hidden_rim"] = render.hidden_rim_fraction(scene, cam) if scene.get("mount") else 0.0
+    truth = {"file": name, "pose": scene["pose"], "circle": [round(c, 4) for c in render.circle(scene, cam)],
+             "scene": scene}
+    return name, png.tobytes(), truth
+
+
+_WORKER = {}
+
+
+def _init(cam, texture_path):
+    _WORKER["cam"] = cam
+    _WORKER["tex"] = render.load_texture(texture_path)
+
+
+def _job(args):
+    family, seed, index, outdir, supersample = args
+    name, png, truth = make_frame(family, seed, index, _WORKER["cam"], _WORKER["tex"], supersample)
+    _write_atomic(os.path.join(outdir, name), png)
+    return index, truth
+
+
+def write_family(outdir, family, n, seed, cam, texture_path, jobs=1, supersample=4, progress=None):
+    """Render frames 0..n-1 of `family` into `outdir` and write truth.jsonl; reuse a complete folder
+    made with the same parameters. `progress(k)` is called as frames finish."""
+    os.makedirs(outdir, exist_ok=True)
+    params = {"family": family, "n": n, "seed": seed, "camera": cam.to_dict(),
+              "texture": os.path.abspath(texture_path), "supersample": supersample, "version": 1}
+    ppath = os.path.join(outdir, "params.json")
+    tpath = os.path.join(outdir, "truth.jsonl")
+    if os.path.exists(ppath) and os.path.exists(tpath):
+        with open(ppath, encoding="utf-8") as f:
+            if json.load(f) == params:
+                if progress:
+                    progress(n)
+                return tpath
+    for stale in (ppath, tpath):
+        if os.path.exists(stale):
+            os.remove(stale)
+    for old in os.listdir(outdir):
+        if old.endswith(".png"):
+            os.remove(os.path.join(outdir, old))
+    truths = [None] * n
+    work = [(family, seed, i, outdir, supersample) for i in range(n)]
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs, initializer=_init, initargs=(cam, texture_path)) as ex:
+            for i, truth in ex.map(_job, work, chunksize=2):
+                truths[i] = truth
+                if progress:
+                    progress(1)
+    else:
+        _init(cam, texture_path)
+        for w in work:
+            i, truth = _job(w)
+            truths[i] = truth
+            if progress:
+                progress(1)
+    names = [t["file"] for t in truths]
+    if len(set(names)) != len(names):
+        raise RuntimeError(f"{outdir}: two frames drew the same pose; use another seed")
+    lines = "".join(json.dumps(t) + "\n" for t in truths)
+    _write_atomic(tpath, lines.encode())
+    _write_atomic(ppath, (json.dumps(params, indent=1) + "\n").encode())
+    return tpath
