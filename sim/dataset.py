@@ -33,7 +33,8 @@ import numpy as np
 
 from sim import names
 from sim.camera import Camera
-from sim.frames import PNG_FILTER, PNG_LEVEL, encode_png, remove_stale_temporaries, write_atomic
+from sim.frames import (PNG_FILTER, PNG_LEVEL, encode_png, frame_problem, remove_stale_temporaries,
+                        write_atomic)
 from sim.randomize import Randomization
 
 SPLITS = ("train", "val", "test", "test_offgrid")
@@ -174,6 +175,27 @@ def _differences(old, new, prefix=""):
     return diffs
 
 
+def _frames_to_render(poses, out, camera, workers):
+    """(tasks, damaged): the frames to render as (index, path, pose), and 'split/name (problem)' for each
+    existing frame that failed sim.frames.frame_problem (a file is not taken as done for existing: a
+    crash or a full disk can leave one empty or cut short). Frames are checked on `workers` threads
+    (decoding releases the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+    paths = [os.path.join(out, split, names.format_name(*pose)) for _, split, pose in poses]
+    present = [i for i, p in enumerate(paths) if os.path.exists(p)]
+    with ThreadPoolExecutor(max(1, workers)) as ex:
+        problems = dict(zip(present, ex.map(lambda i: frame_problem(paths[i], camera.width, camera.height),
+                                            present)))
+    tasks, damaged = [], []
+    for i, (index, split, pose) in enumerate(poses):
+        if i in problems and problems[i] is None:
+            continue
+        if problems.get(i) is not None:
+            damaged.append(f"{os.path.relpath(paths[i], out)} ({problems[i]})")
+        tasks.append((index, paths[i], pose))
+    return tasks, damaged
+
+
 def _write_record(out, record):
     write_atomic(os.path.join(out, RECORD), (json.dumps(record, indent=1) + "\n").encode())
 
@@ -277,16 +299,16 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
     }
     _write_record(out, record)
 
-    tasks = []
-    for index, split, pose in poses:
-        path = os.path.join(out, split, names.format_name(*pose))
-        if not os.path.exists(path):
-            tasks.append((index, path, pose))
-    done_before = len(poses) - len(tasks)
-    if done_before:
-        log(f"resuming: {done_before} of {len(poses)} frames already in {out}")
-
     workers = workers or len(os.sched_getaffinity(0))
+    camera = cfg.scene.camera if getattr(cfg, "scene", None) is not None else cfg.camera   # the frames' size
+    tasks, broken = _frames_to_render(poses, out, camera, workers)
+    done_before = len(poses) - len(tasks)
+    if done_before or broken:
+        log(f"resuming: {done_before} of {len(poses)} frames already in {out}")
+    if broken:
+        log(f"{len(broken)} frame{'s' if len(broken) > 1 else ''} damaged, rendered again: " +
+            "; ".join(broken[:10]) + (f"; and {len(broken) - 10} more" if len(broken) > 10 else ""))
+
     workers = max(1, min(workers, len(tasks) or 1))
     t0 = time.time()
     bar = None
@@ -313,7 +335,8 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
 
     record["complete"] = True
     record["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-    record["last_run"] = {"rendered": len(tasks), "workers": workers, "seconds": round(elapsed, 3),
+    record["last_run"] = {"rendered": len(tasks), "damaged_rendered_again": len(broken), "workers": workers,
+                          "seconds": round(elapsed, 3),
                           "frames_per_s": round(len(tasks) / elapsed, 2) if elapsed > 0 and tasks else None}
     _write_record(out, record)
     return record

@@ -15,6 +15,7 @@ PNG_FILTER = "up"
 _PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, PNG_LEVEL, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_UP]
 
 TMP_PREFIX = ".tmp-"
+_PNG_END = b"\x00\x00\x00\x00IEND\xaeB`\x82"      # the IEND chunk every whole PNG ends with
 
 # The process umask, read once (os.umask can only be read by setting it).
 _UMASK = os.umask(0o022)
@@ -41,6 +42,10 @@ def write_atomic(path, data):
         os.fchmod(fd, 0o666 & ~_UMASK)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+            f.flush()
+            # The bytes reach the disk before the name does: after a crash or power cut the name holds
+            # the whole frame or nothing, never an empty or short file that a resume takes as done.
+            os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
         try:
@@ -65,3 +70,36 @@ def remove_stale_temporaries(folder):
             except OSError:
                 pass
     return n
+
+
+def frame_problem(path, width, height):
+    """None when `path` is a whole PNG frame of width x height, else what is wrong with it (text).
+
+    A resumed dataset trusts no file for existing: it must end with the PNG end
+    chunk (a frame cut short loses it), every chunk's CRC must match, and the
+    pixels must decode.
+    """
+    from PIL import Image
+    try:
+        size = os.path.getsize(path)
+        with open(path, "rb") as f:
+            f.seek(max(0, size - len(_PNG_END)))
+            tail = f.read()
+    except OSError as e:
+        return f"unreadable ({e.strerror})"
+    if size == 0:
+        return "empty file"
+    if tail != _PNG_END:
+        return f"{size} bytes, no PNG end chunk (cut short?)"
+    try:
+        with Image.open(path) as im:
+            if im.format != "PNG":
+                return f"not a PNG ({im.format})"
+            im.verify()
+        with Image.open(path) as im:
+            if im.size != (width, height):
+                return f"{im.size[0]} x {im.size[1]} pixels, not {width} x {height}"
+            im.load()
+    except Exception as e:      # Pillow reports damage as OSError, SyntaxError, ValueError, zlib.error, ...
+        return f"{size} bytes, does not decode ({e.__class__.__name__}: {e})"
+    return None

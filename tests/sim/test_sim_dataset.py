@@ -174,6 +174,35 @@ def test_resume_after_kill_gives_the_uninterrupted_dataset(tmp_path, texture_png
     assert json.loads((killed / "dataset.json").read_text())["complete"] is True
 
 
+def test_resume_renders_damaged_frames_again(tmp_path, texture_png, small_camera_json):
+    """A frame cut to 0 or 1000 bytes, or with a flipped byte, is not taken as done for existing: the
+    resume names it, renders it again, and the folder is the uninterrupted dataset byte for byte."""
+    out = tmp_path / "ds"
+    args = ["dataset", "--texture", texture_png, "--camera", small_camera_json, "--out", str(out), *SMALL]
+    run_sim(*args, "--quiet")
+    reference = tree_digest(out)
+    victims = {split: sorted(os.listdir(out / split))[0] for split in ("train", "val", "test")}
+    (out / "train" / victims["train"]).write_bytes(b"")
+    frame = out / "val" / victims["val"]
+    assert frame.stat().st_size > 1000
+    frame.write_bytes(frame.read_bytes()[:1000])
+    flipped = bytearray((out / "test" / victims["test"]).read_bytes())
+    flipped[len(flipped) // 2] ^= 0xFF
+    (out / "test" / victims["test"]).write_bytes(bytes(flipped))
+    r = run_sim(*args, "--workers", "2")
+    assert "3 frames damaged, rendered again" in r.stderr, r.stderr
+    for split, name in victims.items():
+        assert f"{split}/{name}" in r.stderr
+    assert "empty file" in r.stderr and "1000 bytes" in r.stderr
+    rec = json.loads((out / "dataset.json").read_text())
+    assert rec["complete"] is True
+    assert rec["last_run"]["rendered"] == 3 and rec["last_run"]["damaged_rendered_again"] == 3
+    assert tree_digest(out) == reference
+    # Whole frames are trusted: a second resume renders nothing.
+    run_sim(*args, "--quiet")
+    assert json.loads((out / "dataset.json").read_text())["last_run"]["rendered"] == 0
+
+
 def test_build_in_process_checks_texture(tmp_path):
     with pytest.raises(DatasetError, match="texture file not found"):
         build(DatasetConfig(texture=str(tmp_path / "missing.png")), str(tmp_path / "out"), progress=False)
