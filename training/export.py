@@ -63,11 +63,44 @@ def run_onnx(path_or_session, images, threads=None):
     return dict(zip(names, sess.run(names, {"image": np.ascontiguousarray(images, np.float32)})))
 
 
-def export_onnx(model, config, path, metrics=None, check_inputs=None, tol_deg=1e-4):
+def set_metadata(path, items):
+    """Add or replace metadata_props of an existing ONNX file (atomically: a temporary file
+    beside it, then a rename), e.g. the texture of training/refine.py for refinement."""
+    path = Path(path)
+    m = onnx.load(str(path))
+    keep = [(p.key, p.value) for p in m.metadata_props if p.key not in items]
+    del m.metadata_props[:]
+    for k, v in keep + list(items.items()):
+        p = m.metadata_props.add()
+        p.key, p.value = k, v
+    onnx.checker.check_model(m)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        onnx.save(m, str(tmp))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def record_texture(config):
+    """The texture file named in the training dataset's record, when it is still there with the
+    same content (sha256), else None."""
+    import hashlib
+    t = (config.get("dataset_record") or {}).get("texture")
+    if not isinstance(t, dict) or not t.get("path") or not Path(t["path"]).is_file():
+        return None
+    data = Path(t["path"]).read_bytes()
+    if t.get("sha256") and hashlib.sha256(data).hexdigest() != t["sha256"]:
+        return None
+    return t["path"]
+
+
+def export_onnx(model, config, path, metrics=None, check_inputs=None, tol_deg=1e-4, texture=None):
     """Write `model` (PoseNet, any device) to `path` and check it with onnxruntime.
 
     check_inputs: float32 [N, 3, S, S] preprocessed images (real frames are the better
-    check); random inputs are used when None. Returns the max |difference| in degrees."""
+    check); random inputs are used when None. texture: the texture's PNG file, carried in the
+    metadata for refinement (training/refine.py). Returns the max |difference| in degrees."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     size = config["preprocess"]["size"]
@@ -80,7 +113,12 @@ def export_onnx(model, config, path, metrics=None, check_inputs=None, tol_deg=1e
     torch.onnx.export(wrapper, (dummy,), str(tmp), input_names=["image"], output_names=names,
                       dynamic_axes=dyn, opset_version=OPSET, dynamo=False, do_constant_folding=True)
     m = onnx.load(str(tmp))
-    for k, v in metadata(config, metrics).items():
+    meta = metadata(config, metrics)
+    texture = texture or record_texture(config)
+    if texture:
+        from .refine import META_TEXTURE, texture_png_b64
+        meta[META_TEXTURE] = texture_png_b64(texture)
+    for k, v in meta.items():
         p = m.metadata_props.add()
         p.key, p.value = k, v
     m.doc_string = f"spherepose pose regressor ({config['arch']}, {config['head']} head)"

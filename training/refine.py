@@ -1,0 +1,514 @@
+"""Render-and-compare refinement and the confidence of a pose (the reference; host/src/refine.c
+implements the same steps in C and is tested against this file).
+
+The model file carries its texture (metadata `spherepose.texture_png`). From the network's pose
+and the sphere's circle in the (undistorted) frame, the texture is rendered analytically into the
+frame's geometry, pixel by pixel inside the circle: the ray of the conventions' pinhole camera,
+its intersection with the sphere, the body direction R^T n, a bilinear texture lookup. A
+photometric model absorbs what light does to colour: per channel c,
+
+    I_c(p) ~ T_c(p) * (a0 + a1 n_x + a2 n_y + a3 n_z)_c + b_c
+
+(a gain with a first-order shading term, and an offset; solved by least squares at every step).
+Gauss-Newton steps over the rotation, the circle's centre and its radius then minimise the
+squared difference, coarse to fine on a pyramid of the frame and the texture. The residual is
+the fraction of the frame's variance inside the circle that the aligned texture does not explain
+(0: perfect, 1: no relation); with the pose checked against the model's ranges it decides
+whether the answer is confident. docs/refine.md gives the algorithm and the numbers.
+"""
+import base64
+import json
+import math
+
+import numpy as np
+
+META_TEXTURE = "spherepose.texture_png"
+META_CONFIDENCE = "spherepose.confidence"
+
+# The algorithm's parameters: one source, copied into host/src/refine.h (a unit test compares).
+LEVELS = 3            # frame and texture pyramid levels, coarse to fine (2x2 box reductions)
+ITERS = (3, 2, 1)     # Gauss-Newton steps per level, coarse to fine
+STRIDES = (1, 1, 2)   # sample every STRIDE-th row and column of each level, coarse to fine
+RESIDUAL_LEVEL = 1    # the level whose pixels give the residual (0 finest)
+RHO_MAX = 0.92        # pixels used: centre within RHO_MAX * r of the circle's centre
+TEXTURE_WIDTH = 1024  # texture width at the finest level (reduced from the model's by 2x2 boxes)
+DAMPING = 1e-3        # Levenberg-Marquardt: lambda * diag(J^T J) added to the normal equations
+MAX_STEP_DEG = 3.0    # a step that rotates more than this is scaled down to it
+REF_D_OVER_R = 12.5   # the reference camera's distance / sphere radius (250 mm / 20 mm)
+FD_STEP = 1e-3        # finite-difference step (pixels) for d n / d (cx, cy, r)
+
+DEFAULT_CONFIDENCE = {"residual_max": 0.25, "range_margin_deg": 2.0}
+
+
+# ---- texture --------------------------------------------------------------------------------
+
+def texture_png_b64(path_or_bgr):
+    """The metadata value: base64 of the texture's PNG (the file's bytes when given a path)."""
+    if isinstance(path_or_bgr, (str, bytes)) or hasattr(path_or_bgr, "__fspath__"):
+        with open(path_or_bgr, "rb") as f:
+            data = f.read()
+        if data[:8] != b"\x89PNG\r\n\x1a\n":
+            raise ValueError(f"{path_or_bgr}: not a PNG file")
+        _decode_png(data, str(path_or_bgr))
+    else:
+        import cv2
+        ok, buf = cv2.imencode(".png", np.asarray(path_or_bgr, np.uint8))
+        if not ok:
+            raise ValueError("texture: cannot encode as PNG")
+        data = buf.tobytes()
+    return base64.b64encode(data).decode("ascii")
+
+
+def _decode_png(data, source):
+    import cv2
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"{source}: cannot decode the texture PNG")
+    h, w = img.shape[:2]
+    if w != 2 * h or h < 8:
+        raise ValueError(f"{source}: texture is {w}x{h}, expected width = 2 x height")
+    if w % (TEXTURE_WIDTH >> (LEVELS - 1)) or w < TEXTURE_WIDTH:
+        raise ValueError(f"{source}: texture width {w} must be a multiple of "
+                         f"{TEXTURE_WIDTH >> (LEVELS - 1)} and at least {TEXTURE_WIDTH}")
+    return img
+
+
+def texture_from_b64(text, source=META_TEXTURE):
+    """BGR uint8 texture from the metadata value."""
+    try:
+        data = base64.b64decode(text, validate=True)
+    except ValueError as e:
+        raise ValueError(f"{source}: not base64 ({e})") from None
+    return _decode_png(data, source)
+
+
+def reduce2(img):
+    """2x2 box reduction in float64 (the C code sums the same four values in the same order)."""
+    a = np.asarray(img, np.float64)
+    h, w = a.shape[0] // 2 * 2, a.shape[1] // 2 * 2
+    a = a[:h, :w]
+    return ((a[0::2, 0::2] + a[0::2, 1::2]) + (a[1::2, 0::2] + a[1::2, 1::2])) * 0.25
+
+
+def texture_pyramid(bgr):
+    """[finest, ..., coarsest] float64 textures; the finest is TEXTURE_WIDTH wide."""
+    t = np.asarray(bgr, np.float64)
+    while t.shape[1] > TEXTURE_WIDTH:
+        t = reduce2(t)
+    pyr = [t]
+    for _ in range(LEVELS - 1):
+        pyr.append(reduce2(pyr[-1]))
+    return pyr
+
+
+# ---- geometry ---------------------------------------------------------------------------------
+
+def focal_px(r, camera_focal_px=None):
+    """Focal length in pixels: the camera file's, else the one that puts the sphere at the
+    reference camera's distance/radius ratio for a circle of radius r."""
+    if camera_focal_px:
+        return float(camera_focal_px)
+    return r * math.sqrt(REF_D_OVER_R ** 2 - 1.0)
+
+
+def normals(us, vs, cx, cy, r, f):
+    """World-frame unit normals [N, 3] of the sphere points seen through pixels (us, vs)
+    (continuous coordinates), the sphere's image a circle (cx, cy, r), focal length f px.
+    The camera looks at the sphere's centre; the sphere has unit radius."""
+    x = (us - cx) / f
+    y = -(vs - cy) / f
+    tan_a = r / f
+    dist = math.sqrt(1.0 + tan_a * tan_a) / tan_a       # 1 / sin(alpha)
+    inv = 1.0 / np.sqrt(x * x + y * y + 1.0)
+    dx, dy, dz = x * inv, y * inv, -inv
+    od = dist * dz                                       # O . d, O = (0, 0, dist)
+    disc = np.maximum(od * od - dist * dist + 1.0, 0.0)
+    t = -od - np.sqrt(disc)
+    return np.stack([t * dx, t * dy, dist + t * dz], axis=1)
+
+
+def normals_and_derivs(us, vs, cx, cy, r, fixed_f):
+    """normals() and their derivatives [3, N, 3] with respect to (cx, cy, r), by central
+    differences; f follows r when no camera focal length is given."""
+    def n_at(cx_, cy_, r_):
+        return normals(us, vs, cx_, cy_, r_, focal_px(r_, fixed_f))
+    n = n_at(cx, cy, r)
+    h = FD_STEP
+    d = np.stack([(n_at(cx + h, cy, r) - n_at(cx - h, cy, r)) / (2 * h),
+                  (n_at(cx, cy + h, r) - n_at(cx, cy - h, r)) / (2 * h),
+                  (n_at(cx, cy, r + h) - n_at(cx, cy, r - h)) / (2 * h)])
+    return n, d
+
+
+def sample(tex, b):
+    """Bilinear texture values [N, 3] at body directions b [N, 3] and their gradients
+    d value / d b [N, 3 (channel), 3] along the sphere."""
+    h, w = tex.shape[:2]
+    bx, by, bz = b[:, 0], b[:, 1], b[:, 2]
+    rho2 = np.maximum(bx * bx + bz * bz, 1e-12)
+    rho = np.sqrt(rho2)
+    lon = np.arctan2(bx, bz)
+    lat = np.arcsin(np.clip(by, -1.0, 1.0))
+    ut = (lon + math.pi) * (w / (2 * math.pi)) - 0.5
+    vt = (math.pi / 2 - lat) * (h / math.pi) - 0.5
+    i0 = np.floor(ut)
+    j0 = np.floor(vt)
+    fx = (ut - i0)[:, None]
+    fy = (vt - j0)[:, None]
+    i0 = i0.astype(np.int64) % w
+    i1 = (i0 + 1) % w
+    j0 = j0.astype(np.int64)
+    j1 = np.clip(j0 + 1, 0, h - 1)
+    j0 = np.clip(j0, 0, h - 1)
+    t00, t10, t01, t11 = tex[j0, i0], tex[j0, i1], tex[j1, i0], tex[j1, i1]
+    top = t00 + fx * (t10 - t00)
+    bot = t01 + fx * (t11 - t01)
+    val = top + fy * (bot - top)
+    du = (t10 - t00) + fy * ((t11 - t01) - (t10 - t00))      # d val / d ut
+    dv = bot - top                                           # d val / d vt
+    # d ut / d b and d vt / d b (tangent directions only matter)
+    kw = w / (2 * math.pi)
+    kh = -h / math.pi
+    dut = np.stack([bz / rho2 * kw, np.zeros_like(bx), -bx / rho2 * kw], axis=1)
+    dvt = np.stack([np.zeros_like(bx), kh / rho, np.zeros_like(bx)], axis=1)
+    grad = du[:, :, None] * dut[:, None, :] + dv[:, :, None] * dvt[:, None, :]
+    return val, grad
+
+
+def euler_to_matrix(euler_deg):
+    """(x, y, z) degrees -> body-to-world R = Rz(z) Ry(y) Rx(x) (float64 numpy)."""
+    x, y, z = (math.radians(a) for a in euler_deg)
+    cx, sx, cy, sy, cz, sz = math.cos(x), math.sin(x), math.cos(y), math.sin(y), math.cos(z), math.sin(z)
+    return np.array([[cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+                     [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
+                     [-sy, cy * sx, cy * cx]])
+
+
+def matrix_to_euler(R):
+    """R -> (x, y, z) degrees (conventions.md, |y| < 90)."""
+    y = -math.asin(max(-1.0, min(1.0, R[2, 0])))
+    x = math.atan2(R[2, 1], R[2, 2])
+    z = math.atan2(R[1, 0], R[0, 0])
+    return (math.degrees(x), math.degrees(y), math.degrees(z))
+
+
+def rotvec_to_matrix(w):
+    """Rodrigues: rotation by |w| radians about w."""
+    th = math.sqrt(float(w @ w))
+    if th < 1e-15:
+        return np.eye(3)
+    k = w / th
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * (K @ K)
+
+
+# ---- frame sampling ---------------------------------------------------------------------------
+
+def frame_pyramid(frame, cx, cy, r):
+    """[(image float64, scale)] finest first: the square around the circle (with room for the
+    centre and radius to move) and its 2x2 reductions. Coordinates: continuous pixel
+    coordinates of the level, origin at the crop's corner; scale: level pixels per frame pixel."""
+    h, w = frame.shape[:2]
+    half = r * 1.25 + 2
+    step = 1 << (LEVELS - 1)
+    x0 = max(0, int(math.floor((cx - half) / step)) * step)
+    y0 = max(0, int(math.floor((cy - half) / step)) * step)
+    x1 = min(w, int(math.ceil((cx + half) / step)) * step)
+    y1 = min(h, int(math.ceil((cy + half) / step)) * step)
+    pyr = [np.asarray(frame[y0:y1, x0:x1], np.float64)]
+    for _ in range(LEVELS - 1):
+        pyr.append(reduce2(pyr[-1]))
+    return pyr, (x0, y0)
+
+
+def pixel_set(img, cx, cy, r, stride=1):
+    """Pixel centres (us, vs) of a level image inside RHO_MAX * r, every `stride`-th row and
+    column (counted from the image's corner), and their values [N, 3]."""
+    h, w = img.shape[:2]
+    rm = RHO_MAX * r
+    j0, j1 = max(0, int(math.floor(cy - rm))), min(h, int(math.ceil(cy + rm)) + 1)
+    i0, i1 = max(0, int(math.floor(cx - rm))), min(w, int(math.ceil(cx + rm)) + 1)
+    j0 = (j0 + stride - 1) // stride * stride
+    i0 = (i0 + stride - 1) // stride * stride
+    jj, ii = np.mgrid[j0:j1:stride, i0:i1:stride]
+    us = ii.ravel() + 0.5
+    vs = jj.ravel() + 0.5
+    keep = (us - cx) ** 2 + (vs - cy) ** 2 <= rm * rm
+    us, vs = us[keep], vs[keep]
+    return us, vs, img[(vs - 0.5).astype(np.int64), (us - 0.5).astype(np.int64)]
+
+
+# ---- photometric fit --------------------------------------------------------------------------
+
+def photometric_fit(obs, val, n):
+    """Per channel least squares of obs ~ val * (a0 + a.n) + b. Returns (model [N, 3],
+    shade [N, 3] = the multiplier of val, sse, sst)."""
+    N = obs.shape[0]
+    model = np.empty_like(obs)
+    shade = np.empty_like(obs)
+    sse = sst = 0.0
+    for c in range(3):
+        t = val[:, c]
+        A = np.stack([t, t * n[:, 0], t * n[:, 1], t * n[:, 2], np.ones(N)], axis=1)
+        AtA = A.T @ A
+        Atb = A.T @ obs[:, c]
+        coef = _solve_spd(AtA, Atb)
+        model[:, c] = A @ coef
+        shade[:, c] = coef[0] + coef[1] * n[:, 0] + coef[2] * n[:, 1] + coef[3] * n[:, 2]
+        e = obs[:, c] - model[:, c]
+        sse += float(e @ e)
+        m = obs[:, c].mean()
+        sst += float(((obs[:, c] - m) ** 2).sum())
+    return model, shade, sse, sst
+
+
+def _solve_spd(A, b):
+    """A x = b for a symmetric positive semi-definite A (a tiny ridge keeps it solvable)."""
+    k = A.shape[0]
+    A = A + np.eye(k) * (1e-9 * max(1.0, float(np.trace(A)) / k))
+    return np.linalg.solve(A, b)
+
+
+# ---- refinement -------------------------------------------------------------------------------
+
+class Result:
+    """Refined pose and circle, and the alignment residual."""
+
+    def __init__(self, R, circle, residual, iterations):
+        self.R = R
+        self.euler = matrix_to_euler(R)
+        self.circle = circle
+        self.residual = residual       # after refinement (at the given pose when no steps)
+        self.iterations = iterations
+
+    def __repr__(self):
+        return (f"Result(euler={tuple(round(a, 4) for a in self.euler)}, circle={self.circle}, "
+                f"residual={self.residual:.4f})")
+
+
+def _eval(tex, img, us, vs, obs, R, cx, cy, r, fixed_f, want_jac):
+    if want_jac:
+        n, dn = normals_and_derivs(us, vs, cx, cy, r, fixed_f)
+    else:
+        n, dn = normals(us, vs, cx, cy, r, focal_px(r, fixed_f)), None
+    b = n @ R                       # R^T n, row by row
+    val, grad = sample(tex, b)
+    model, shade, sse, sst = photometric_fit(obs, val, n)
+    if not want_jac:
+        return sse, sst, None, None
+    gw = grad @ R.T                 # world-frame gradients [N, 3, 3]: R g_b
+    # d val_c / d omega = g_w x n ; d val_c / d theta_k = g_w . dn_k
+    jw = np.cross(gw, n[:, None, :])                           # [N, 3 ch, 3]
+    jt = np.einsum("nck,pnk->ncp", gw, dn)                     # [N, 3 ch, 3]
+    J = np.concatenate([jw, jt], axis=2) * shade[:, :, None]   # [N, 3, 6]
+    e = obs - model
+    return sse, sst, J.reshape(-1, 6), e.reshape(-1)
+
+
+def residual_at(frame, circle, R, texture_pyr, camera_focal_px=None):
+    """The residual at a pose and circle (finest level, no refinement)."""
+    return refine(frame, circle, R, texture_pyr, camera_focal_px, iters=(0,) * LEVELS).residual
+
+
+def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, strides=STRIDES,
+           residual_level=RESIDUAL_LEVEL):
+    """Refine the pose R0 (body to world) and the circle (cx, cy, r) (continuous coordinates
+    of the undistorted frame, BGR uint8) against the texture pyramid. Returns a Result."""
+    cx, cy, r = (float(v) for v in circle)
+    R = np.array(R0, np.float64)
+    fpyr, (x0, y0) = frame_pyramid(frame, cx, cy, r)
+    # work in the crop's coordinates at the finest level
+    cx, cy = cx - x0, cy - y0
+    total = 0
+    for lev in range(LEVELS - 1, -1, -1):
+        s = 1.0 / (1 << lev)
+        img, tex = fpyr[lev], texture_pyr[lev]
+        ff = camera_focal_px * s if camera_focal_px else None
+        us, vs, obs = pixel_set(img, cx * s, cy * s, r * s, strides[LEVELS - 1 - lev])
+        if len(us) < 50:
+            continue
+        for _ in range(iters[LEVELS - 1 - lev]):
+            sse, sst, J, e = _eval(tex, img, us, vs, obs, R, cx * s, cy * s, r * s, ff, True)
+            H = J.T @ J
+            g = J.T @ e
+            H[np.diag_indices(6)] *= 1.0 + DAMPING
+            d = _solve_spd(H, g)
+            ang = math.sqrt(float(d[:3] @ d[:3]))
+            lim = math.radians(MAX_STEP_DEG)
+            if ang > lim:
+                d = d * (lim / ang)
+            R = rotvec_to_matrix(d[:3]) @ R
+            cx += d[3] / s
+            cy += d[4] / s
+            r += d[5] / s
+            total += 1
+    s = 1.0 / (1 << residual_level)
+    ff = camera_focal_px * s if camera_focal_px else None
+    us, vs, obs = pixel_set(fpyr[residual_level], cx * s, cy * s, r * s)
+    sse, sst, _, _ = _eval(texture_pyr[residual_level], fpyr[residual_level], us, vs, obs, R,
+                           cx * s, cy * s, r * s, ff, False)
+    res = sse / sst if sst > 0 else 1.0
+    return Result(R, (cx + x0, cy + y0, r), res, total)
+
+
+# ---- confidence -------------------------------------------------------------------------------
+
+def confidence_params(meta_value=None):
+    """Thresholds from the metadata value (JSON), over the defaults."""
+    p = dict(DEFAULT_CONFIDENCE)
+    if meta_value:
+        p.update(json.loads(meta_value) if isinstance(meta_value, str) else meta_value)
+    return p
+
+
+def judge(residual, euler, ranges, params):
+    """(confident, note): the residual against its threshold, then the pose against the
+    model's ranges (widened by range_margin_deg)."""
+    if not residual <= params["residual_max"]:
+        return False, (f"poor alignment (residual {residual:.3f} > {params['residual_max']:.3f}): "
+                       f"another texture, a pose outside the model's ranges, or a wrong sphere")
+    m = params["range_margin_deg"]
+    for a, name in zip(euler, "xyz"):
+        lo, hi = ranges[name]
+        if not lo - m <= a <= hi + m:
+            return False, f"outside the model's ranges ({name} = {a:.1f} not in [{lo:g}, {hi:g}])"
+    return True, None
+
+
+# ---- the model's side: texture, thresholds, one frame end to end ------------------------------
+
+class Refiner:
+    """What a model file gives refinement: its texture pyramid, thresholds and ranges."""
+
+    def __init__(self, meta, camera=None):
+        self.meta = meta
+        self.texture = texture_pyramid(texture_from_b64(meta[META_TEXTURE])) if META_TEXTURE in meta else None
+        self.conf = confidence_params(meta.get(META_CONFIDENCE))
+        self.ranges = json.loads(meta.get("spherepose.ranges") or '{"x": [-30, 30], "y": [-30, 30], "z": [-30, 30]}')
+        self.focal = None
+        if camera is not None:
+            from training.preprocess import camera_geometry
+            self.focal = camera_geometry(camera)[1]
+
+    def __call__(self, frame, circle, euler, refine_pose=True):
+        """dict of the result line's members for a frame (undistorted BGR), the circle found
+        (continuous coordinates) and the network's angles."""
+        R0 = euler_to_matrix(euler)
+        if self.texture is None:
+            return {"x": euler[0], "y": euler[1], "z": euler[2]}
+        iters = ITERS if refine_pose else (0,) * LEVELS
+        res = refine(frame, circle, R0, self.texture, self.focal, iters=iters)
+        key = "residual_max" if refine_pose else "residual_max_unrefined"
+        conf = dict(self.conf, residual_max=self.conf.get(key, self.conf["residual_max"]))
+        ok, note = judge(res.residual, res.euler, self.ranges, conf)
+        out = {"x": res.euler[0], "y": res.euler[1], "z": res.euler[2], "confident": ok,
+               "residual": res.residual}
+        if note:
+            out["note"] = note
+        if refine_pose:
+            out["circle"] = list(res.circle)
+        return out
+
+
+def network_estimate(sess, meta, frame, camera=None):
+    """(undistorted frame, circle in continuous coordinates, network angles) for a BGR frame."""
+    from training import preprocess as pp
+    from training.export import run_onnx
+    p = pp.params(meta.get("spherepose.preprocess"))
+    if camera is not None and p["name"] != pp.NAME_V1:
+        frame = pp.undistort(frame, camera)
+    cx, cy, r, bg = pp.find_sphere(frame, p, camera)
+    x = pp.normalise(pp.crop(frame, cx, cy, r, bg, p), p)
+    e = run_onnx(sess, x[None])["euler_deg"][0].astype(np.float64)
+    return frame, (cx + 0.5, cy + 0.5, r + 0.5), tuple(float(v) for v in e)
+
+
+def _frames(paths):
+    from pathlib import Path
+    exts = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            yield from sorted(q for q in p.iterdir() if q.suffix.lower() in exts)
+        else:
+            yield p
+
+
+def calibrate(residuals_refined, residuals_unrefined, factor=3.0, floor=0.02):
+    """Thresholds from in-range held-out frames: `factor` times their 99th percentile
+    (at least `floor`)."""
+    q = lambda a: float(np.quantile(np.asarray(a, np.float64), 0.99))
+    return {"residual_max": round(max(floor, factor * q(residuals_refined)), 4),
+            "residual_max_unrefined": round(max(floor, factor * q(residuals_unrefined)), 4),
+            "range_margin_deg": DEFAULT_CONFIDENCE["range_margin_deg"],
+            "calibrated_on": len(residuals_refined)}
+
+
+def main(argv=None):
+    import argparse
+    import sys
+    ap = argparse.ArgumentParser(prog="python -m training.refine", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{add-texture,run,calibrate}")
+    a = sub.add_parser("add-texture", help="store a texture PNG in an existing model file "
+                       f"(metadata {META_TEXTURE})")
+    a.add_argument("--model", required=True, help="ONNX model, rewritten in place")
+    a.add_argument("--texture", required=True, help="the texture the model was trained on (PNG, "
+                   "width = 2 x height, e.g. build/textures/Texture_3_color.png)")
+    r = sub.add_parser("run", help="network + refinement on frames: one JSON line each, as poseinfer")
+    r.add_argument("--model", required=True)
+    r.add_argument("--camera-file", default=None, help="camera JSON (focal length, distortion)")
+    r.add_argument("--no-refine", action="store_true", help="the network's angles, residual at them")
+    r.add_argument("frames", nargs="+", help="image files or folders")
+    c = sub.add_parser("calibrate", help="confidence thresholds from held-out in-range frames "
+                       f"(metadata {META_CONFIDENCE})")
+    c.add_argument("--model", required=True)
+    c.add_argument("--camera-file", default=None)
+    c.add_argument("--factor", type=float, default=3.0, help="threshold = factor x 99th percentile")
+    c.add_argument("--write", action="store_true", help="store the thresholds in the model file")
+    c.add_argument("frames", nargs="+", help="in-range frames the model was not trained on")
+    args = ap.parse_args(argv)
+    from training.export import onnx_session, read_metadata, set_metadata
+    try:
+        if args.cmd == "add-texture":
+            set_metadata(args.model, {META_TEXTURE: texture_png_b64(args.texture)})
+            print(f"{args.model}: texture {args.texture} stored ({META_TEXTURE})")
+            return 0
+        import cv2
+        meta = read_metadata(args.model)
+        if META_TEXTURE not in meta:
+            raise ValueError(f"{args.model}: no texture (metadata {META_TEXTURE}); add it with add-texture")
+        camera = None
+        if args.camera_file:
+            from sim.camera import load_camera
+            camera = load_camera(args.camera_file)
+        sess = onnx_session(args.model, 1)
+        ref = Refiner(meta, camera)
+        rows = []
+        for path in _frames(args.frames):
+            frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            if frame is None:
+                print(json.dumps({"file": str(path), "error": "cannot decode image"}), flush=True)
+                continue
+            frame, circle, euler = network_estimate(sess, meta, frame, camera)
+            if args.cmd == "run":
+                out = {"file": str(path), **ref(frame, circle, euler, not args.no_refine)}
+                print(json.dumps(out), flush=True)
+            else:
+                rows.append((ref(frame, circle, euler, True)["residual"],
+                             ref(frame, circle, euler, False)["residual"]))
+        if args.cmd == "calibrate":
+            if len(rows) < 20:
+                raise ValueError(f"calibrate: {len(rows)} frames; give at least 20")
+            conf = calibrate([a for a, _ in rows], [b for _, b in rows], args.factor)
+            print(json.dumps(conf))
+            if args.write:
+                set_metadata(args.model, {META_CONFIDENCE: json.dumps(conf, sort_keys=True)})
+        return 0
+    except (OSError, ValueError) as e:
+        print(f"python -m training.refine: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
