@@ -22,6 +22,45 @@ void config_init(pi_config *c)
     c->warmup = 1;
     c->max_pixels = PI_DEFAULT_MAX_PIXELS;
     c->timeout_ms = 5000;
+    c->socket_mode = 0660;
+}
+
+void config_clear_allow_dirs(pi_config *c)
+{
+    for (int i = 0; i < c->n_allow_dirs; i++) free(c->allow_dirs[i]);
+    free(c->allow_dirs);
+    c->allow_dirs = NULL;
+    c->n_allow_dirs = 0;
+}
+
+static int add_allow_dir(pi_config *c, const char *v, char *err)
+{
+    char **n;
+    if (v[0] != '/') {
+        snprintf(err, PI_ERR_LEN, "allow_dir: expected an absolute directory, got \"%.64s\"", v);
+        return -1;
+    }
+    n = realloc(c->allow_dirs, (size_t)(c->n_allow_dirs + 1) * sizeof *n);
+    if (!n) { snprintf(err, PI_ERR_LEN, "out of memory"); return -1; }
+    c->allow_dirs = n;
+    if (!(n[c->n_allow_dirs] = strdup(v))) { snprintf(err, PI_ERR_LEN, "out of memory"); return -1; }
+    c->n_allow_dirs++;
+    return 0;
+}
+
+/* An octal mode such as 0660 or 660, at most 0777. */
+static int set_mode(int *dst, const char *key, const char *v, char *err)
+{
+    char *end;
+    long n;
+    errno = 0;
+    n = strtol(v, &end, 8);
+    if (errno || end == v || *end != '\0' || n < 0 || n > 0777) {
+        snprintf(err, PI_ERR_LEN, "%s: expected an octal mode such as 0660, got \"%.64s\"", key, v);
+        return -1;
+    }
+    *dst = (int)n;
+    return 0;
 }
 
 void config_free(pi_config *c)
@@ -30,6 +69,9 @@ void config_free(pi_config *c)
     free(c->serve);
     free(c->camera);
     free(c->dump_tensor);
+    free(c->socket_group);
+    free(c->token_file);
+    config_clear_allow_dirs(c);
     memset(c, 0, sizeof *c);
 }
 
@@ -92,9 +134,15 @@ int config_set(pi_config *c, const char *key_in, const char *v, char *err)
     if (!strcmp(key, "warmup")) return set_int(&c->warmup, key, v, 0, 100, err);
     if (!strcmp(key, "max_pixels")) return set_long(&c->max_pixels, key, v, 64, 1L << 34, err);
     if (!strcmp(key, "timeout_ms")) return set_int(&c->timeout_ms, key, v, 1, 3600000, err);
+    if (!strcmp(key, "socket_mode")) return set_mode(&c->socket_mode, key, v, err);
+    if (!strcmp(key, "socket_group")) return set_str(&c->socket_group, v, err);
+    if (!strcmp(key, "allow_dir")) return add_allow_dir(c, v, err);
+    if (!strcmp(key, "tcp_remote")) return set_bool(&c->tcp_remote, key, v, err);
+    if (!strcmp(key, "token_file")) return set_str(&c->token_file, v, err);
     snprintf(err, PI_ERR_LEN,
              "unknown key \"%.64s\"; keys: model, serve, camera, continuous, count, interval_ms, "
-             "threads, warmup, max_pixels, timeout_ms, timings", key_in);
+             "threads, warmup, max_pixels, timeout_ms, timings, socket_mode, socket_group, allow_dir, "
+             "tcp_remote, token_file", key_in);
     return -1;
 }
 

@@ -16,6 +16,13 @@ typedef struct pi_config {
     long max_pixels;    /* max_pixels = N: refuse larger frames */
     int timeout_ms;     /* timeout_ms = N: frame-server timeout */
     int timings;        /* timings = yes|no: add decode/preprocess/infer ms */
+    /* The daemon as a shared service (docs/poseinfer.md, "Who may ask for what"). */
+    int socket_mode;    /* socket_mode = 0660: permissions of the unix: socket */
+    char *socket_group; /* socket_group = NAME|GID: group of the unix: socket */
+    char **allow_dirs;  /* allow_dir = DIR (repeatable): where `infer PATH` may read */
+    int n_allow_dirs;
+    int tcp_remote;     /* tcp_remote = yes|no: a tcp: address other than loopback */
+    char *token_file;   /* token_file = FILE: TCP clients first send "auth TOKEN" */
 } pi_config;
 
 /* Defaults. */
@@ -27,6 +34,9 @@ void config_free(pi_config *c);
 /* Set one key (file keys; '-' and '_' are the same). 0, or -1 with
  * err "reason". */
 int config_set(pi_config *c, const char *key, const char *value, char *err);
+
+/* Forget the allow_dir list (a --allow-dir flag replaces the file's list). */
+void config_clear_allow_dirs(pi_config *c);
 
 /* Read a config file: "key = value" lines, '#' comments, blank lines.
  * Errors name the file and line: "config(FILE:LINE): reason". */

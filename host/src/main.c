@@ -14,6 +14,7 @@
 #include <netinet/in.h>
 #include <unistd.h>
 
+#include "access.h"
 #include "config.h"
 #include "internal.h"
 #include "json.h"
@@ -48,12 +49,16 @@ static void usage(FILE *f)
         "      --max-pixels N     refuse larger images (default 67108864) [max_pixels]\n"
         "      --timeout-ms N     frame-server timeout (default 5000) [timeout_ms]\n"
         "      --timings          add decode_ms, preprocess_ms, infer_ms, cx, cy, r [timings]\n"
+        "      --allow-dir DIR    the daemon's `infer PATH` may read files beneath DIR; repeat for\n"
+        "                         more (default none: frames come from the camera or the socket) [allow_dir]\n"
         "      --dump-tensor OUT  write the network input of the one IMAGE as raw float32 [3,S,S]\n"
         "  -h, --help             this help\n"
         "\n"
         "Signals: SIGTERM/SIGINT stop, SIGHUP reloads the model. Logs go to stderr.\n"
-        "Protocol (one command per line, one JSON line back): ping, infer PATH, grab,\n"
-        "stats, reload, quit.\n",
+        "Protocol (one command per line, one JSON line back): ping, infer PATH, frame N,\n"
+        "grab, stats, reload, auth TOKEN, quit. Config-file keys for the daemon as a\n"
+        "shared service: socket_mode (0660), socket_group, tcp_remote, token_file\n"
+        "(docs/poseinfer.md).\n",
         f);
 }
 
@@ -71,6 +76,7 @@ static const struct option long_opts[] = {
     {"timeout-ms", required_argument, 0, 8},
     {"timings", no_argument, 0, 9},
     {"dump-tensor", required_argument, 0, 10},
+    {"allow-dir", required_argument, 0, 11},
     {"help", no_argument, 0, 'h'},
     {0, 0, 0, 0},
 };
@@ -207,10 +213,12 @@ int main(int argc, char **argv)
     app a;
     sbuf s;
     char err[PI_ERR_LEN];
-    int c, rc = EXIT_USAGE, lfd = -1;
+    int c, rc = EXIT_USAGE, lfd = -1, allow_flag = 0;
+    access_policy acc;
 
     config_init(&cfg);
     memset(&a, 0, sizeof a);
+    memset(&acc, 0, sizeof acc);
     sb_init(&s);
 
     /* Pass 1: only --config, so that the other flags override the file. */
@@ -243,6 +251,12 @@ int main(int argc, char **argv)
             free(cfg.dump_tensor);
             cfg.dump_tensor = strdup(optarg);
             continue;
+        case 11:
+            /* the flags' list replaces the file's */
+            if (!allow_flag) config_clear_allow_dirs(&cfg);
+            allow_flag = 1;
+            key = "allow_dir";
+            break;
         case 'h': usage(stdout); rc = 0; goto out;
         default: usage(stderr); goto out;
         }
@@ -305,7 +319,16 @@ int main(int argc, char **argv)
             rc = continuous_run(&a, err) < 0 ? 1 : 0;
             goto out;
         }
-        lfd = server_listen(cfg.serve, err);
+        if (access_init(&acc, &cfg, err) < 0) {
+            fprintf(stderr, "poseinfer: %s\n", err);
+            rc = EXIT_USAGE;
+            goto out;
+        }
+        a.acc = &acc;
+        {
+            listen_opts lo = {cfg.socket_mode, cfg.socket_group, cfg.tcp_remote, acc.token != NULL};
+            lfd = server_listen(cfg.serve, &lo, err);
+        }
         if (lfd < 0) {
             fprintf(stderr, "poseinfer: %s\n", err);
             rc = EXIT_USAGE;
@@ -347,6 +370,7 @@ out:
     if (lfd >= 0) close(lfd);
     pi_camera_close(a.cam);
     pi_close(a.ctx);
+    access_free(&acc);
     sb_free(&s);
     config_free(&cfg);
     return rc;

@@ -7,6 +7,7 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <fcntl.h>
+#include <grp.h>
 #include <math.h>
 #include <netinet/in.h>
 #include <poll.h>
@@ -184,12 +185,39 @@ static const char *skip_space(const char *s)
     return s;
 }
 
-int proto_handle(app *a, const char *line, sbuf *out)
+#define COMMANDS "commands: ping, infer PATH, frame N, grab, stats, reload, auth TOKEN, quit"
+
+void proto_frame(app *a, const unsigned char *buf, size_t len, sbuf *out)
 {
+    char err[PI_ERR_LEN];
+    pi_result r;
+    sb_printf(out, "{\"bytes\": %zu, ", len);
+    if (!a->ctx) {
+        sb_puts(out, "\"error\": \"no model loaded\"}");
+    } else if (pi_infer_memory(a->ctx, buf, len, &r, err) < 0) {
+        record(a, 0, 0);
+        sb_puts(out, "\"error\": ");
+        sb_json_str(out, err);
+        sb_puts(out, "}");
+    } else {
+        sbuf t;
+        record(a, 1, r.total_ms);
+        sb_init(&t);
+        result_json(&t, NULL, NULL, &r, 1); /* its members after ours */
+        sb_puts(out, t.buf ? t.buf + 1 : "}");
+        sb_free(&t);
+    }
+    sb_puts(out, "\n");
+}
+
+int proto_handle(app *a, peer *p, const char *line, sbuf *out)
+{
+    static const peer nobody = {-1, 0, 0};
     char err[PI_ERR_LEN];
     pi_result r;
     const char *arg;
     size_t cmdlen;
+    const peer *who = p ? p : &nobody;
 
     a->requests++;
     line = skip_space(line);
@@ -197,22 +225,60 @@ int proto_handle(app *a, const char *line, sbuf *out)
     arg = skip_space(line + cmdlen);
 
 #define IS(c) (cmdlen == strlen(c) && strncmp(line, c, cmdlen) == 0)
+    /* A TCP client of a server with a token says it before anything else;
+     * a wrong or missing token closes the connection. */
+    if (a->acc && a->acc->token && who->uid < 0 && !who->authed && !IS("auth")) {
+        error_json(out, NULL, NULL, "auth required: send \"auth TOKEN\" first");
+        sb_puts(out, "\n");
+        return 1;
+    }
     if (cmdlen == 0) {
-        error_json(out, NULL, NULL, "empty command; commands: ping, infer PATH, grab, stats, reload, quit");
+        error_json(out, NULL, NULL, "empty command; " COMMANDS);
     } else if (IS("ping")) {
         sb_puts(out, "{\"pong\": true}");
+    } else if (IS("auth")) {
+        if (!a->acc || !a->acc->token) {
+            error_json(out, NULL, NULL, "auth: this server has no token (token_file)");
+        } else if (!access_token_ok(a->acc, arg)) {
+            error_json(out, NULL, NULL, "auth: wrong token");
+            sb_puts(out, "\n");
+            return 1;
+        } else {
+            if (p) p->authed = 1;
+            sb_puts(out, "{\"auth\": true}");
+        }
     } else if (IS("infer")) {
+        static const access_policy none;
+        int fd;
         if (!*arg) {
             error_json(out, NULL, NULL, "infer: expected a path");
         } else if (!a->ctx) {
             error_json(out, "file", arg, "no model loaded");
-        } else if (pi_infer_file(a->ctx, arg, &r, err) < 0) {
+        } else if ((fd = access_open(a->acc ? a->acc : &none, arg, err)) < 0 ||
+                   pi_infer_fd(a->ctx, fd, arg, &r, err) < 0) {
             record(a, 0, 0);
             error_json(out, "file", arg, err);
         } else {
             record(a, 1, r.total_ms);
             result_json(out, "file", arg, &r, 1);
         }
+    } else if (IS("frame")) {
+        char *end;
+        unsigned long long n;
+        errno = 0;
+        n = strtoull(arg, &end, 10);
+        if (!*arg || *arg == '-' || errno || *skip_space(end) != '\0') {
+            error_json(out, NULL, NULL, "frame: expected \"frame N\" and then N bytes of an encoded image");
+            sb_puts(out, "\n");
+            return 1; /* the bytes that follow cannot be told from commands */
+        }
+        if (n == 0 || n > (unsigned long long)pi_max_file_bytes) {
+            sb_printf(out, "{\"bytes\": %llu, \"error\": \"frame: %llu bytes, outside 1..%ld (max_file_bytes)\"}\n",
+                      n, n, pi_max_file_bytes);
+            return 1;
+        }
+        if (p) p->want = (size_t)n;
+        return p ? 2 : 1;
     } else if (IS("grab")) {
         if (!a->cam) {
             error_json(out, NULL, NULL, "grab: no camera (start with --camera SPEC)");
@@ -237,15 +303,23 @@ int proto_handle(app *a, const char *line, sbuf *out)
         sb_json_num(out, app_percentile(a, 99), 3);
         sb_puts(out, "}");
     } else if (IS("reload")) {
-        if (app_reload(a, err) < 0) error_json(out, NULL, NULL, err);
-        else sb_puts(out, "{\"reloaded\": true}");
+        /* Loading a model stalls the daemon; only its own user (or root)
+         * may ask, over the unix: socket; others have SIGHUP. */
+        if (who->uid < 0 || (who->uid != (long)geteuid() && who->uid != 0)) {
+            snprintf(err, sizeof err, "reload: only the daemon's user (uid %ld) may reload, over the unix: "
+                     "socket, or with SIGHUP (systemctl reload poseinfer)", (long)geteuid());
+            error_json(out, NULL, NULL, err);
+        } else if (app_reload(a, err) < 0) {
+            error_json(out, NULL, NULL, err);
+        } else {
+            sb_puts(out, "{\"reloaded\": true}");
+        }
     } else if (IS("quit")) {
         sb_puts(out, "{\"bye\": true}\n");
         return 1;
     } else {
         char msg[160];
-        snprintf(msg, sizeof msg, "unknown command \"%.*s\"; commands: ping, infer PATH, grab, stats, reload, quit",
-                 (int)(cmdlen > 40 ? 40 : cmdlen), line);
+        snprintf(msg, sizeof msg, "unknown command \"%.*s\"; " COMMANDS, (int)(cmdlen > 40 ? 40 : cmdlen), line);
         error_json(out, NULL, NULL, msg);
     }
 #undef IS
@@ -255,9 +329,27 @@ int proto_handle(app *a, const char *line, sbuf *out)
 
 /* ---- sockets -------------------------------------------------------------------- */
 
-int server_listen(const char *spec, char *err)
+/* The gid of a group given by name or number; -1 with err. */
+static long group_id(const char *g, char *err)
 {
+    char buf[4096], *end;
+    struct group gr, *res = NULL;
+    long n;
+    errno = 0;
+    n = strtol(g, &end, 10);
+    if (*g && !*end && !errno && n >= 0) return n;
+    if (getgrnam_r(g, &gr, buf, sizeof buf, &res) != 0 || !res) {
+        pi_seterr(err, "socket_group: no group \"%.64s\"", g);
+        return -1;
+    }
+    return (long)res->gr_gid;
+}
+
+int server_listen(const char *spec, const listen_opts *o, char *err)
+{
+    static const listen_opts defaults = {0660, NULL, 0, 0};
     int fd = -1, one = 1;
+    if (!o) o = &defaults;
     if (strncmp(spec, "unix:", 5) == 0) {
         const char *path = spec + 5;
         struct sockaddr_un sa;
@@ -283,9 +375,30 @@ int server_listen(const char *spec, char *err)
             }
             unlink(path);
         }
-        if (bind(fd, (struct sockaddr *)&sa, sizeof sa) < 0) {
-            pi_seterr(err, "bind(%s): %s", spec, strerror(errno));
-            goto fail;
+        {
+            /* Created 0600 whatever the caller's umask, then opened up to
+             * the configured mode, so that it is never wider for a moment. */
+            long gid = o->group ? group_id(o->group, err) : -1;
+            mode_t old;
+            int rc;
+            if (o->group && gid < 0) goto fail;
+            old = umask(0177);
+            rc = bind(fd, (struct sockaddr *)&sa, sizeof sa);
+            umask(old);
+            if (rc < 0) {
+                pi_seterr(err, "bind(%s): %s", spec, strerror(errno));
+                goto fail;
+            }
+            if (gid >= 0 && chown(path, (uid_t)-1, (gid_t)gid) < 0) {
+                pi_seterr(err, "listen(%s): socket_group %s: %s", spec, o->group, strerror(errno));
+                unlink(path);
+                goto fail;
+            }
+            if (chmod(path, (mode_t)o->mode) < 0) {
+                pi_seterr(err, "listen(%s): socket_mode %04o: %s", spec, (unsigned)o->mode, strerror(errno));
+                unlink(path);
+                goto fail;
+            }
         }
     } else if (strncmp(spec, "tcp:", 4) == 0) {
         char host[64];
@@ -307,6 +420,19 @@ int server_listen(const char *spec, char *err)
             return -1;
         }
         sa.sin_port = htons((unsigned short)port);
+        /* TCP has no file permissions and no peer uid: loopback only,
+         * unless the config says otherwise, and then only with a token. */
+        if ((ntohl(sa.sin_addr.s_addr) >> 24) != 127) {
+            if (!o->tcp_remote) {
+                pi_seterr(err, "listen(%s): not a loopback address; to serve other machines set tcp_remote = yes "
+                               "and token_file in the config", spec);
+                return -1;
+            }
+            if (!o->has_token) {
+                pi_seterr(err, "listen(%s): tcp_remote needs token_file (clients then send \"auth TOKEN\")", spec);
+                return -1;
+            }
+        }
         fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
         if (fd < 0) { pi_seterr(err, "socket: %s", strerror(errno)); return -1; }
         setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
@@ -330,8 +456,11 @@ fail:
 
 typedef struct client {
     int fd;
+    peer who;
     char in[MAX_LINE];
     size_t inlen;
+    unsigned char *img;   /* the image of a "frame N" request, who.want bytes */
+    size_t imglen;
     sbuf out;
     size_t outoff;
     int closing;
@@ -341,6 +470,8 @@ static void client_close(app *a, client *c)
 {
     close(c->fd);
     sb_free(&c->out);
+    free(c->img);
+    c->img = NULL;
     c->fd = -1;
     a->clients--;
 }
@@ -360,34 +491,88 @@ static int client_flush(client *c)
     return 0;
 }
 
+/* Bytes of a "frame N" image: take what is buffered, then answer when all
+ * have come. */
+static void client_image(app *a, client *c, const char *data, size_t n)
+{
+    if (n > c->who.want - c->imglen) n = c->who.want - c->imglen;
+    if (n) memcpy(c->img + c->imglen, data, n);
+    c->imglen += n;
+    if (c->imglen == c->who.want) {
+        proto_frame(a, c->img, c->imglen, &c->out);
+        free(c->img);
+        c->img = NULL;
+        c->imglen = 0;
+        c->who.want = 0;
+    }
+}
+
+/* Answer the complete lines in c->in (and feed images). */
+static void client_lines(app *a, client *c)
+{
+    for (;;) {
+        char *nl;
+        size_t n;
+        if (c->who.want) { /* an image is coming: buffered bytes are its first */
+            size_t take = c->inlen < c->who.want - c->imglen ? c->inlen : c->who.want - c->imglen;
+            client_image(a, c, c->in, take);
+            memmove(c->in, c->in + take, c->inlen - take);
+            c->inlen -= take;
+            if (c->who.want) return;
+            continue;
+        }
+        nl = memchr(c->in, '\n', c->inlen);
+        if (!nl) return;
+        *nl = '\0';
+        n = (size_t)(nl - c->in) + 1;
+        if (nl > c->in && nl[-1] == '\r') nl[-1] = '\0';
+        if (c->closing) {
+        } else if (memchr(c->in, '\0', n - 1)) {
+            /* a C string would end there: "infer /a\0junk" must not open /a */
+            error_json(&c->out, NULL, NULL, "request contains a NUL byte");
+            sb_puts(&c->out, "\n");
+        } else {
+            int rc = proto_handle(a, &c->who, c->in, &c->out);
+            if (rc == 1) c->closing = 1;
+            if (rc == 2) {
+                c->img = malloc(c->who.want);
+                c->imglen = 0;
+                if (!c->img) {
+                    error_json(&c->out, NULL, NULL, "frame: out of memory");
+                    sb_puts(&c->out, "\n");
+                    c->who.want = 0;
+                    c->closing = 1;
+                }
+            }
+        }
+        memmove(c->in, c->in + n, c->inlen - n);
+        c->inlen -= n;
+    }
+}
+
 /* Read and answer complete lines; -1 when the client is to be dropped. */
 static int client_read(app *a, client *c)
 {
     for (;;) {
-        ssize_t r = recv(c->fd, c->in + c->inlen, sizeof c->in - c->inlen, 0);
+        ssize_t r;
+        if (c->who.want && c->inlen == 0) { /* straight into the image */
+            r = recv(c->fd, c->img + c->imglen, c->who.want - c->imglen, 0);
+            if (r > 0) {
+                c->imglen += (size_t)r;
+                if (c->imglen == c->who.want) client_image(a, c, NULL, 0);
+                continue;
+            }
+        } else {
+            r = recv(c->fd, c->in + c->inlen, sizeof c->in - c->inlen, 0);
+            if (r > 0) {
+                c->inlen += (size_t)r;
+                client_lines(a, c);
+            }
+        }
         if (r < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) break;
         if (r < 0 && errno == EINTR) continue;
         if (r <= 0) return -1;
-        c->inlen += (size_t)r;
-        for (;;) {
-            char *nl = memchr(c->in, '\n', c->inlen);
-            size_t n;
-            if (!nl) break;
-            *nl = '\0';
-            n = (size_t)(nl - c->in) + 1;
-            if (nl > c->in && nl[-1] == '\r') nl[-1] = '\0';
-            if (c->closing) {
-            } else if (memchr(c->in, '\0', n - 1)) {
-                /* a C string would end there: "infer /a\0junk" must not open /a */
-                error_json(&c->out, NULL, NULL, "request contains a NUL byte");
-                sb_puts(&c->out, "\n");
-            } else if (proto_handle(a, c->in, &c->out)) {
-                c->closing = 1;
-            }
-            memmove(c->in, c->in + n, c->inlen - n);
-            c->inlen -= n;
-        }
-        if (c->inlen == sizeof c->in) {
+        if (c->inlen == sizeof c->in && !c->who.want) {
             error_json(&c->out, NULL, NULL, "line too long");
             sb_puts(&c->out, "\n");
             c->closing = 1;
@@ -411,6 +596,7 @@ int server_run(app *a, int lfd, const char *spec, char *err)
     client cl[MAX_CLIENTS];
     struct pollfd pfd[MAX_CLIENTS + 2];
     int idx[MAX_CLIENTS + 2];
+    const int unix_sock = strncmp(spec, "unix:", 5) == 0;
     for (int i = 0; i < MAX_CLIENTS; i++) cl[i].fd = -1;
 
     while (!got_stop) {
@@ -444,6 +630,11 @@ int server_run(app *a, int lfd, const char *spec, char *err)
                 for (int i = 0; i < MAX_CLIENTS; i++) {
                     if (cl[i].fd >= 0) continue;
                     cl[i].fd = fd;
+                    cl[i].who.uid = unix_sock ? access_peer_uid(fd) : -1;
+                    cl[i].who.authed = 0;
+                    cl[i].who.want = 0;
+                    cl[i].img = NULL;
+                    cl[i].imglen = 0;
                     cl[i].inlen = 0;
                     cl[i].outoff = 0;
                     cl[i].closing = 0;

@@ -4,16 +4,25 @@
 #ifndef PI_SERVER_H
 #define PI_SERVER_H
 
+#include "access.h"
 #include "config.h"
 #include "json.h"
 #include "poseinfer.h"
 
 #define LAT_WINDOW 1024
 
+/* The client at the other end of one connection. */
+typedef struct peer {
+    long uid;        /* its uid (SO_PEERCRED) on unix:, -1 on tcp: */
+    int authed;      /* sent the right "auth TOKEN" */
+    size_t want;     /* bytes of a "frame N" image still to come (proto_handle -> 2) */
+} peer;
+
 typedef struct app {
     pi_ctx *ctx;
     pi_camera *cam;
     const pi_config *cfg;
+    const access_policy *acc;   /* NULL: nothing allowed (no files, no token) */
     double started_ms;
     unsigned long requests, frames, errors, reloads;
     int clients;
@@ -28,15 +37,30 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
 /* Append {"<key>": name, "error": msg}; key NULL gives {"error": msg}. */
 void error_json(sbuf *s, const char *key, const char *name, const char *msg);
 
-/* Handle one protocol line (without the newline); append the reply line
- * (with newline) to out. Returns 1 when the client asked to close. */
-int proto_handle(app *a, const char *line, sbuf *out);
+/* Handle one protocol line (without the newline) from client p; append the
+ * reply line (with newline) to out. Returns 1 when the connection is to be
+ * closed after the reply, 2 when a "frame N" line asks for N bytes of image
+ * (p->want), which go to proto_frame. */
+int proto_handle(app *a, peer *p, const char *line, sbuf *out);
+
+/* Infer the image of a "frame N" request and append the reply line. */
+void proto_frame(app *a, const unsigned char *buf, size_t len, sbuf *out);
 
 /* Percentile (0..100) of the recorded frame times; NAN when none. */
 double app_percentile(const app *a, double pct);
 
-/* Open a listening socket for "unix:PATH" or "tcp:HOST:PORT". */
-int server_listen(const char *spec, char *err);
+/* How to listen: the unix: socket's mode and group, and whether a tcp:
+ * address may be other than loopback (then only with a token). */
+typedef struct listen_opts {
+    int mode;            /* permissions of the socket file (0660) */
+    const char *group;   /* its group, a name or a number; NULL: the daemon's */
+    int tcp_remote;      /* allow a non-loopback tcp: address */
+    int has_token;       /* a token is configured (needed for tcp_remote) */
+} listen_opts;
+
+/* Open a listening socket for "unix:PATH" or "tcp:HOST:PORT"; o NULL: mode
+ * 0660, loopback only. */
+int server_listen(const char *spec, const listen_opts *o, char *err);
 
 /* Install SIGTERM/SIGINT (stop) and SIGHUP (reload) handlers that wake poll. */
 int signals_install(char *err);

@@ -8,6 +8,7 @@ import signal
 import socket
 import subprocess
 import time
+from pathlib import Path
 
 import pytest
 
@@ -78,7 +79,7 @@ def daemon(poseinfer, timeout_scale):
 
 def test_unix_protocol(daemon, models, frames, tmp_path):
     sock = tmp_path / "pi.sock"
-    d = daemon("--model", models["good"], "--serve", f"unix:{sock}")
+    d = daemon("--model", models["good"], "--serve", f"unix:{sock}", "--allow-dir", frames["good.png"].parent)
     f = d.connect()
     assert ask(f, "ping") == {"pong": True}
     r = ask(f, f"infer {frames['good.png']}")
@@ -107,7 +108,7 @@ def test_unix_protocol(daemon, models, frames, tmp_path):
 
 
 def test_tcp_and_long_line(daemon, models, frames):
-    d = daemon("--model", models["good"], "--serve", "tcp:127.0.0.1:0")
+    d = daemon("--model", models["good"], "--serve", "tcp:127.0.0.1:0", "--allow-dir", frames["good.jpg"].parent)
     assert re.match(r"tcp:127\.0\.0\.1:\d+$", d.addr)
     f = d.connect()
     assert ask(f, "ping") == {"pong": True}
@@ -121,7 +122,7 @@ def test_tcp_and_long_line(daemon, models, frames):
 def test_sighup_reload(daemon, models, frames, tmp_path):
     m = tmp_path / "model.onnx"
     shutil.copy(models["good"], m)
-    d = daemon("--model", m, "--serve", f"unix:{tmp_path / 's'}")
+    d = daemon("--model", m, "--serve", f"unix:{tmp_path / 's'}", "--allow-dir", frames["good.png"].parent)
     f = d.connect()
     before = ask(f, f"infer {frames['good.png']}")
     shutil.copy(models["size64"], m)
@@ -283,7 +284,7 @@ def test_fifo_does_not_block_the_daemon(daemon, models, frames, tmp_path):
     """`infer FIFO` answers an error at once; another client is served."""
     fifo = tmp_path / "f.png"
     os.mkfifo(fifo)
-    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}")
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--allow-dir", tmp_path)
     f = d.connect()
     r = ask(f, f"infer {fifo}")
     assert "not a regular file (a FIFO)" in r["error"] and r["file"] == str(fifo)
@@ -294,10 +295,7 @@ def test_fifo_does_not_block_the_daemon(daemon, models, frames, tmp_path):
 
 def test_request_bytes_that_are_not_utf8_give_valid_json(daemon, models, tmp_path):
     d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}")
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.connect(d.addr[5:])
-    s.settimeout(30 * d.scale)
-    f = s.makefile("rwb", buffering=0)
+    s = f = RawClient(d)
     f.write(b"fly\xff\xfe away\ninfer /x/\xe9t\xe9.png\ninfer /x.png\x00/etc/passwd\nping\n")
     replies = [json.loads(f.readline().decode("utf-8")) for _ in range(4)]
     assert "unknown command \"fly\ufffd\ufffd\"" in replies[0]["error"]
@@ -306,3 +304,158 @@ def test_request_bytes_that_are_not_utf8_give_valid_json(daemon, models, tmp_pat
     assert replies[3] == {"pong": True}
     s.close()
     assert d.stop() == 0
+
+
+class RawClient:
+    """Bytes both ways: write() sends all of them, readline() reads a line."""
+
+    def __init__(self, d):
+        self.s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.s.connect(d.addr[5:])
+        self.s.settimeout(30 * d.scale)
+        self.r = self.s.makefile("rb")
+
+    def write(self, data):
+        self.s.sendall(data)
+
+    def readline(self):
+        return self.r.readline()
+
+    def close(self):
+        self.r.close()
+        self.s.close()
+
+
+def send_frame(f, data):
+    f.write(b"frame %d\n" % len(data) + data)
+    return json.loads(f.readline())
+
+
+def raw_connect(d):
+    c = RawClient(d)
+    return c, c
+
+
+def test_default_reads_no_files_but_takes_frames(daemon, models, frames, tmp_path):
+    """Without --allow-dir, `infer PATH` reads nothing (the reply tells nothing
+    about the file); images come over the socket with `frame N`."""
+    sock = tmp_path / "pi.sock"
+    d = daemon("--model", models["good"], "--serve", f"unix:{sock}")
+    assert oct(os.stat(sock).st_mode & 0o7777) == "0o660"  # whatever the umask
+    s, f = raw_connect(d)
+    for p in (frames["good.png"], "/etc/shadow", "/nonexistent"):
+        f.write(f"infer {p}\n".encode())
+        r = json.loads(f.readline())
+        assert "reading files is off" in r["error"] and r["file"] == str(p)
+    data = frames["good.png"].read_bytes()
+    r = send_frame(f, data)
+    assert r["bytes"] == len(data) and "error" not in r and {"x", "y", "z", "infer_ms"} <= set(r)
+    r = send_frame(f, frames["nosphere.png"].read_bytes())
+    assert "no sphere found" in r["error"]
+    r = send_frame(f, b"not an image")
+    assert "cannot decode" in r["error"]
+    # an image sent in pieces, pipelined with a ping
+    f.write(b"frame %d\n" % len(data) + data[:1000])
+    time.sleep(0.05)
+    f.write(data[1000:] + b"ping\n")
+    assert "error" not in json.loads(f.readline())
+    assert json.loads(f.readline()) == {"pong": True}
+    f.write(b"frame 99999999999\n")
+    assert "max_file_bytes" in json.loads(f.readline())["error"]
+    assert f.readline() == b""  # closed: what follows cannot be told from commands
+    s.close()
+    assert d.stop() == 0
+
+
+def test_allow_dir_confines_infer(daemon, models, frames, tmp_path):
+    ok = tmp_path / "frames"
+    ok.mkdir()
+    shutil.copy(frames["good.png"], ok / "a.png")
+    (ok / "out.png").symlink_to(frames["good.png"])  # leads out of the directory
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--allow-dir", ok)
+    f = d.connect()
+    assert "error" not in ask(f, f"infer {ok / 'a.png'}")
+    assert "No such file" in ask(f, f"infer {ok / 'b.png'}")["error"]
+    outside = [ok / "out.png", f"{ok}/../frames/../../x.png", frames["good.png"], "/etc/shadow", "/etc/no-such-file",
+               "relative.png"]
+    answers = [ask(f, f"infer {p}")["error"] for p in outside]
+    for p, a in zip(outside[:-1], answers[:-1]):
+        assert a == f"infer({p}): not in an allowed directory", a
+    assert "absolute" in answers[-1]
+    assert d.stop() == 0
+
+
+def test_allow_dir_must_exist(run, models, tmp_path):
+    r = run("--model", models["good"], "--serve", f"unix:{tmp_path / 's'}", "--allow-dir", tmp_path / "none")
+    assert r.rc == 2 and f"allow_dir({tmp_path / 'none'})" in r.stderr
+
+
+def test_socket_mode_and_group_from_config(daemon, models, tmp_path):
+    sock = tmp_path / "pi.sock"
+    cfg = tmp_path / "pi.conf"
+    cfg.write_text(f"model = {models['good']}\nserve = unix:{sock}\nsocket_mode = 0600\n"
+                   f"socket_group = {os.getegid()}\n")
+    d = daemon("--config", cfg)
+    st = os.stat(sock)
+    assert st.st_mode & 0o7777 == 0o600 and st.st_gid == os.getegid()
+    assert d.stop() == 0
+
+
+def test_tcp_other_than_loopback_needs_config_and_token(run, daemon, models, tmp_path):
+    r = run("--model", models["good"], "--serve", "tcp:0.0.0.0:0")
+    assert r.rc == 2 and "not a loopback address" in r.stderr
+    cfg = tmp_path / "pi.conf"
+    cfg.write_text(f"model = {models['good']}\ntcp_remote = yes\n")
+    r = run("--config", cfg, "--serve", "tcp:0.0.0.0:0")
+    assert r.rc == 2 and "token_file" in r.stderr
+    tok = tmp_path / "token"
+    tok.write_text("s3cret-token-of-some-length\n")
+    tok.chmod(0o644)
+    cfg.write_text(f"model = {models['good']}\ntcp_remote = yes\ntoken_file = {tok}\n")
+    r = run("--config", cfg, "--serve", "tcp:0.0.0.0:0")
+    assert r.rc == 2 and "readable by every user" in r.stderr
+    tok.chmod(0o600)
+    d = daemon("--config", cfg, "--serve", "tcp:0.0.0.0:0")
+    port = int(d.addr.rsplit(":", 1)[1])
+
+    def conn():
+        s = socket.create_connection(("127.0.0.1", port))
+        s.settimeout(30 * d.scale)
+        return s.makefile("rw", buffering=1)
+
+    f = conn()
+    assert "auth required" in ask(f, "ping")["error"]
+    assert f.readline() == ""
+    f = conn()
+    assert "wrong token" in ask(f, "auth s3cret-token-of-some-lengtX")["error"]
+    assert f.readline() == ""
+    f = conn()
+    assert ask(f, "auth s3cret-token-of-some-length") == {"auth": True}
+    assert ask(f, "ping") == {"pong": True}
+    assert "only the daemon's user" in ask(f, "reload")["error"]  # never over TCP
+    assert d.stop() == 0
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to connect as another user")
+def test_reload_only_from_the_owner(daemon, models, tmp_path):
+    import tempfile
+    python = shutil.which("python3", path="/usr/bin:/bin")
+    if not python:
+        pytest.skip("no system python3 for the other user")
+    sockdir = Path(tempfile.mkdtemp(prefix="pi_owner_"))  # pytest's folders are private to root
+    sockdir.chmod(0o755)
+    sock = sockdir / "pi.sock"
+    cfg = tmp_path / "pi.conf"
+    cfg.write_text(f"model = {models['good']}\nserve = unix:{sock}\nsocket_mode = 0666\n")
+    d = daemon("--config", cfg)
+    client = ("import json, socket, sys; s = socket.socket(socket.AF_UNIX); s.connect(sys.argv[1]); "
+              "f = s.makefile('rw'); f.write('reload\\nping\\n'); f.flush(); print(f.readline(), f.readline())")
+    try:
+        out = subprocess.run([python, "-c", client, str(sock)], capture_output=True, text=True, timeout=30,
+                             user=65534, cwd="/")
+        assert "only the daemon's user (uid 0)" in out.stdout and "pong" in out.stdout, out
+        f = d.connect()
+        assert ask(f, "reload") == {"reloaded": True}
+        assert d.stop() == 0
+    finally:
+        shutil.rmtree(sockdir, ignore_errors=True)

@@ -56,6 +56,39 @@ static void defaults_and_keys(void **state)
     config_free(&c);
 }
 
+/* The daemon's access keys: octal socket_mode, allow_dir repeatable and
+ * absolute, tcp_remote a yes/no. */
+static void access_keys(void **state)
+{
+    pi_config c;
+    char err[PI_ERR_LEN];
+    (void)state;
+    config_init(&c);
+    assert_int_equal(c.socket_mode, 0660);
+    assert_int_equal(c.n_allow_dirs, 0);
+    assert_int_equal(config_set(&c, "socket_mode", "0600", err), 0);
+    assert_int_equal(c.socket_mode, 0600);
+    assert_int_equal(config_set(&c, "socket-mode", "666", err), 0);
+    assert_int_equal(c.socket_mode, 0666);
+    assert_int_equal(config_set(&c, "socket_mode", "0888", err), -1);
+    assert_non_null(strstr(err, "octal"));
+    assert_int_equal(config_set(&c, "socket_mode", "01777", err), -1);
+    assert_int_equal(config_set(&c, "allow_dir", "/data/a", err), 0);
+    assert_int_equal(config_set(&c, "allow-dir", "/data/b", err), 0);
+    assert_int_equal(c.n_allow_dirs, 2);
+    assert_string_equal(c.allow_dirs[1], "/data/b");
+    assert_int_equal(config_set(&c, "allow_dir", "data", err), -1);
+    assert_non_null(strstr(err, "absolute"));
+    config_clear_allow_dirs(&c);
+    assert_int_equal(c.n_allow_dirs, 0);
+    assert_int_equal(config_set(&c, "tcp_remote", "yes", err), 0);
+    assert_int_equal(c.tcp_remote, 1);
+    assert_int_equal(config_set(&c, "socket_group", "video", err), 0);
+    assert_int_equal(config_set(&c, "token_file", "/etc/poseinfer.token", err), 0);
+    assert_string_equal(c.token_file, "/etc/poseinfer.token");
+    config_free(&c);
+}
+
 static void loads_file(void **state)
 {
     pi_config c;
@@ -99,6 +132,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(defaults_and_keys),
+        cmocka_unit_test(access_keys),
         cmocka_unit_test(loads_file),
         cmocka_unit_test(file_errors_name_the_line),
     };
