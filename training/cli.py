@@ -21,7 +21,7 @@ import torch
 
 from . import metrics as M
 from . import preprocess as pp
-from .data import DatasetError, PoseSet
+from .data import DatasetError, PoseSet, check_label_ranges
 from .engine import (SPLITS, CsvLog, Timer, evaluate, set_seed, train_one_epoch, write_split_report,
                      write_tables)
 from .export import ExportMismatch, export_onnx, onnx_session, read_metadata, run_onnx
@@ -90,6 +90,8 @@ def get_args_parser():
                    help="max |onnxruntime - PyTorch| in degrees at export")
     t.add_argument("--no-export", dest="export", action="store_false", help="skip ONNX export at the end")
     t.add_argument("--eval-splits", nargs="*", default=list(SPLITS), help="splits evaluated at the end")
+    t.add_argument("--strict", action="store_true",
+                   help="refuse frames labelled outside the model's ranges (without it: a warning names them)")
     _add_common(t)
 
     e = sub.add_parser("eval", help="evaluate a checkpoint or ONNX model", formatter_class=_Formatter)
@@ -218,6 +220,8 @@ def train(args):
         train_set.labels = torch.cat([train_set.labels, more.labels])
         train_set.names = train_set.names + [f"{Path(extra).name}/{n}" for n in more.names]
     val_set = _load_split(args.data, "val", params, args, True)
+    for split_set in (train_set, val_set):  # frames labelled outside the model's ranges: named, or refused
+        check_label_ranges(split_set, config["ranges"], strict=getattr(args, "strict", False))
     print(f"posetrain: {config['texture']}: {len(train_set)} train, {len(val_set)} val frames; "
           f"{args.arch}/{args.head} on {device} ({torch.get_num_threads()} threads)", flush=True)
 

@@ -13,6 +13,7 @@ after optional augmentation of the uint8 crops.
 import hashlib
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,40 @@ def list_frames(root):
         raise DatasetError(f"{root}: empty split, no <x>_<y>_<z>.png frames")
     labels = np.array([parse_name(p) for p in paths], dtype=np.float64)
     return paths, labels
+
+
+def label_range_problems(names, labels, ranges):
+    """'name (x 400 outside -30..30)' for every frame whose label [N, 3] (degrees) lies outside
+    ranges {'x': [lo, hi], 'y': ..., 'z': ...}."""
+    lo = np.array([ranges[a][0] for a in "xyz"], np.float64)
+    hi = np.array([ranges[a][1] for a in "xyz"], np.float64)
+    lab = np.asarray(labels, np.float64)
+    bad = (lab < lo - 1e-6) | (lab > hi + 1e-6)
+    out = []
+    for i in np.nonzero(bad.any(1))[0]:
+        parts = [f"{a} {lab[i, k]:g} outside {lo[k]:g}..{hi[k]:g}" for k, a in enumerate("xyz") if bad[i, k]]
+        out.append(f"{names[i]} ({', '.join(parts)})")
+    return out
+
+
+def check_label_ranges(ds, ranges, strict=False, warn=None):
+    """Name the frames of ds (a PoseSet) labelled outside the model's ranges: a warning on stderr, or
+    with strict a DatasetError. Such a label (a typo like 400_0_0.png, a frame of another protocol)
+    asks the network for a pose it is not made to give and skews every metric; quietly training on it
+    is how a mistake in the data goes unseen. Returns the problems (empty when all is well)."""
+    problems = label_range_problems(ds.names, ds.labels.numpy(), ranges)
+    if not problems:
+        return problems
+    shown = "; ".join(problems[:10]) + (f"; and {len(problems) - 10} more" if len(problems) > 10 else "")
+    span = ", ".join(f"{a} {ranges[a][0]:g}..{ranges[a][1]:g}" for a in "xyz")
+    text = (f"{ds.root}: {len(problems)} of {len(ds)} frames are labelled outside the model's ranges "
+            f"({span} degrees): {shown}")
+    if strict:
+        raise DatasetError(text)
+    if warn is None:
+        warn = lambda msg: print(msg, file=sys.stderr, flush=True)
+    warn(f"posetrain: warning: {text}; training on them anyway (--strict refuses them)")
+    return problems
 
 
 def _cache_key(paths, params):

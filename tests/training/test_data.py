@@ -7,7 +7,7 @@ import torch
 from sim.names import BadName
 from training import preprocess as pp
 from training.cli import main
-from training.data import CACHE_PREFIX, DatasetError, PoseSet, prepare_batch
+from training.data import CACHE_PREFIX, DatasetError, PoseSet, check_label_ranges, prepare_batch
 
 
 
@@ -82,6 +82,32 @@ def test_cli_reports_bad_input_and_choices(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["train", "--data", str(tmp_path), "--out", "o", "--arch", "resnet"])
     assert "mobilenet_v3_small" in capsys.readouterr().err
+
+
+def test_labels_outside_the_model_ranges_are_named(tmp_path, capsys):
+    """400_0_0.png is a valid name but no pose of the model's ranges (+-30 degrees): a warning names it
+    and training goes on; --strict refuses the run (exit 2) with the same names."""
+    (tmp_path / "train").mkdir()
+    (tmp_path / "val").mkdir()
+    for i, n in enumerate(["1_2_3.png", "400_0_0.png", "0_30_-31.5.png", "-30_30_30.png"]):
+        _write(tmp_path / "train", n, i)
+    _write(tmp_path / "val", "0_0_0.png", 7)
+    ranges = {a: [-30, 30] for a in "xyz"}
+    ds = PoseSet(tmp_path / "train", pp.params({"size": 32}), progress=False)
+    problems = check_label_ranges(ds, ranges)
+    assert problems == ["0_30_-31.5.png (z -31.5 outside -30..30)", "400_0_0.png (x 400 outside -30..30)"]
+    err = capsys.readouterr().err
+    assert "warning" in err and "2 of 4 frames" in err and "400_0_0.png" in err and "--strict" in err
+    with pytest.raises(DatasetError, match=r"400_0_0\.png \(x 400 outside"):
+        check_label_ranges(ds, ranges, strict=True)
+    common = ["train", "--data", str(tmp_path), "--no-progress", "--size", "32", "--arch", "mobilenet_v3_small",
+              "--epochs", "1", "-b", "2", "--threads", "1", "--no-export", "--eval-splits"]
+    assert main([*common, "--out", str(tmp_path / "strict"), "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert "error" in err and "400_0_0.png" in err and "0_30_-31.5.png" in err and "1_2_3.png" not in err
+    assert main([*common, "--out", str(tmp_path / "warn")]) == 0
+    err = capsys.readouterr().err
+    assert "warning" in err and "400_0_0.png" in err
 
 
 def test_augmentation_shapes_and_range():
