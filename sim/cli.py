@@ -1,8 +1,8 @@
 """`sim`: render one frame, render a dataset, or serve frames as a virtual camera.
 
-    sim render  --texture PNG --pose X Y Z [--camera FILE] [--background R,G,B] --out PNG
-    sim dataset --texture PNG --out DIR [options]
-    sim vcam    --texture PNG --socket PATH (--stage-state PATH | --pose X Y Z | --pose-file FILE)
+    sim render  --texture PNG --pose X Y Z [--camera FILE] [--background R,G,B] [--scene FILE] --out PNG
+    sim dataset --texture PNG --out DIR [--scene FILE] [options]
+    sim vcam    --texture PNG --socket PATH [--scene FILE] (--stage-state PATH | --pose X Y Z | --pose-file FILE)
 
 See docs/sim.md.
 """
@@ -87,12 +87,17 @@ def _add_scene_args(p):
     p.add_argument("--camera", metavar="FILE",
                    help="camera JSON (docs/interfaces.md); default: the reference camera "
                         "640x512, f 16 mm, pixel 0.0096 mm, D 250 mm, sphere 40 mm")
-    p.add_argument("--background", type=_rgb, default=(64, 64, 70), metavar="R,G,B",
+    p.add_argument("--background", type=_rgb, metavar="R,G,B",
                    help="background colour (default: 64,64,70, a dark neutral grey apart from "
                         "black, white and the texture colours)")
     p.add_argument("--lights", metavar="FILE",
                    help="lights JSON: a list of {\"direction\": [x,y,z] toward the light, \"intensity\": i, "
                         "\"color\": [r,g,b]} (default: key, fill and rim lights, docs/sim.md)")
+    p.add_argument("--scene", metavar="FILE",
+                   help="rig scene JSON (docs/sim.md, 'Scenes'; e.g. sim/scenes/train.json, sim/scenes/rig.json): "
+                        "mount, background, lights, material, lens and camera effects, drawn per frame within "
+                        "its ranges; replaces --background, --lights and the randomisation flags; --camera "
+                        "replaces the scene's camera")
 
 
 _RZ_FLAGS = {
@@ -125,6 +130,26 @@ def _add_randomization_args(p):
                    help="Gaussian sensor noise, sigma U(0,SIGMA) 8-bit levels (default 0)")
 
 
+def _background(args):
+    return args.background if args.background is not None else (64, 64, 70)
+
+
+def _scene(args):
+    """The parsed --scene file (None without one); refuses the options a scene replaces."""
+    if args.scene is None:
+        return None
+    clash = [f"--{name.replace('_', '-')}" for name in ("background", "lights") if getattr(args, name) is not None]
+    clash += [f"--{attr.replace('_', '-')}" for attr in _RZ_FLAGS.values() if getattr(args, attr, None) is not None]
+    if getattr(args, "randomize", False):
+        clash.append("--randomize")
+    if clash:
+        raise UsageError(f"--scene {args.scene} describes the background, lights and randomisation; "
+                         f"drop {', '.join(clash)} (or edit the scene file)")
+    from sim.scene import load_scene
+    camera = load_camera(args.camera) if args.camera else None
+    return load_scene(args.scene, camera_override=camera)
+
+
 def _randomization(args):
     from sim.randomize import Randomization, check, with_preset
     given = {field: getattr(args, attr) for field, attr in _RZ_FLAGS.items() if getattr(args, attr) is not None}
@@ -142,6 +167,7 @@ def _randomization(args):
 def cmd_render(args):
     from sim.frames import encode_png, write_atomic
     from sim.render import Renderer, DEFAULT_LIGHTS
+    scene = _scene(args)
     camera = load_camera(args.camera)
     lights = _load_lights(args.lights) or DEFAULT_LIGHTS
     if not args.out.lower().endswith(".png"):
@@ -149,7 +175,20 @@ def cmd_render(args):
     out_dir = os.path.dirname(os.path.abspath(args.out))
     if not os.path.isdir(out_dir):
         raise UsageError(f"--out {args.out}: folder {out_dir} does not exist")
-    renderer = Renderer(args.texture, camera, lights=lights, background=args.background,
+    if args.truth is not None and scene is None:
+        raise UsageError("--truth needs --scene (the plain frame's circle is the camera file's)")
+    if scene is not None:
+        import json
+        import numpy as np
+        from sim.scene_render import SceneRenderer
+        img, params = SceneRenderer(args.texture, scene).frame(tuple(args.pose), np.random.default_rng([args.seed]))
+        write_atomic(args.out, encode_png(img))
+        if args.truth is not None:
+            line = {"file": os.path.basename(args.out), "pose": list(args.pose), "circle": params["circle"],
+                    "scene": {k: v for k, v in params.items() if k != "circle"}}
+            write_atomic(args.truth, (json.dumps(line) + "\n").encode())
+        return 0
+    renderer = Renderer(args.texture, camera, lights=lights, background=_background(args),
                         multisamples=args.multisamples)
     img = renderer.render(tuple(args.pose))
     write_atomic(args.out, encode_png(img))
@@ -160,12 +199,13 @@ def cmd_render(args):
 
 def cmd_dataset(args, argv):
     from sim.dataset import AXES, DatasetConfig, build
-    camera = load_camera(args.camera)
+    scene = _scene(args)
+    camera = scene.camera if scene is not None else load_camera(args.camera)
     ranges = {a: getattr(args, f"range_{a}") or tuple(args.range) for a in AXES}
     counts = {"train": args.train, "val": args.val, "test": args.test, "test_offgrid": args.offgrid_test}
     cfg = DatasetConfig(texture=args.texture, camera=camera, ranges=ranges, step=args.step, counts=counts,
-                        sampling=args.sampling, seed=args.seed, background=args.background,
-                        lights=_load_lights(args.lights), randomization=_randomization(args))
+                        sampling=args.sampling, seed=args.seed, background=_background(args),
+                        lights=_load_lights(args.lights), randomization=_randomization(args), scene=scene)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     record = build(cfg, args.out, workers=args.workers, progress=not args.quiet,
                    command=shlex.join(["sim"] + list(argv)), log=log)
@@ -182,7 +222,8 @@ def cmd_dataset(args, argv):
 def cmd_vcam(args):
     from sim import vcam
     from sim.render import DEFAULT_LIGHTS
-    camera = load_camera(args.camera)
+    scene = _scene(args)
+    camera = scene.camera if scene is not None else load_camera(args.camera)
     sources = [args.stage_state is not None, args.pose is not None, args.pose_file is not None]
     if sum(sources) != 1:
         raise UsageError("give exactly one pose source: --stage-state PATH, --pose X Y Z or --pose-file FILE")
@@ -193,9 +234,9 @@ def cmd_vcam(args):
     else:
         source = vcam.PoseFileSource(args.pose_file)
     server = vcam.FrameServer(args.socket, texture=args.texture, camera=camera,
-                              lights=_load_lights(args.lights) or DEFAULT_LIGHTS, background=args.background,
+                              lights=_load_lights(args.lights) or DEFAULT_LIGHTS, background=_background(args),
                               source=source, randomization=_randomization(args), seed=args.seed,
-                              frame_log=args.frame_log)
+                              frame_log=args.frame_log, scene=scene)
     return server.serve_forever()
 
 
@@ -215,6 +256,9 @@ def get_args_parser():
     p.add_argument("--out", required=True, metavar="PNG", help="output PNG (required)")
     p.add_argument("--multisamples", type=_count, default=0, metavar="N",
                    help="MSAA samples for a smoother silhouette (slower)")
+    p.add_argument("--seed", type=int, default=0, help="with --scene: the seed of the scene's draw")
+    p.add_argument("--truth", metavar="JSON",
+                   help="with --scene: also write the frame's truth line (pose, circle, the scene's draw)")
 
     p = sub.add_parser("dataset", help="a labelled dataset (P1 protocol by default)",
                        description="Render a dataset <split>/<x>_<y>_<z>.png with a record dataset.json. "

@@ -4,6 +4,7 @@ Layout of a dataset folder:
 
     OUT/dataset.json                 the record (command, seed, texture, camera, settings, counts)
     OUT/<split>/<x>_<y>_<z>.png      frames; the label is the file name (sim/names.py)
+    OUT/<split>/truth.jsonl          one line per frame: file, pose, the sphere's circle (and a scene's draw)
 
 Splits: train, val, test (grid poses, or continuous with --sampling continuous)
 and test_offgrid (poses drawn uniformly in the ranges, never on the grid).
@@ -39,6 +40,7 @@ from sim.randomize import Randomization
 
 SPLITS = ("train", "val", "test", "test_offgrid")
 RECORD = "dataset.json"
+TRUTH = "truth.jsonl"
 FORMAT = "spherepose-dataset-1"
 AXES = ("x", "y", "z")
 
@@ -60,6 +62,7 @@ class DatasetConfig:
     background: tuple = (64, 64, 70)
     lights: tuple = None  # None: sim.render.DEFAULT_LIGHTS
     randomization: Randomization = field(default_factory=Randomization)
+    scene: object = None  # a sim.scene.Scene: replaces camera, background, lights and randomisation
 
 
 def sha256_file(path):
@@ -161,7 +164,7 @@ def settings_of(cfg, texture_sha):
         "lights": lights_to_json(cfg.lights if cfg.lights is not None else DEFAULT_LIGHTS),
         "randomization": cfg.randomization.to_dict(),
         "renderer": {"mesh": list(DEFAULT_MESH), "png_level": PNG_LEVEL, "png_filter": PNG_FILTER},
-    }
+    } | ({"scene": cfg.scene.settings()} if cfg.scene is not None else {})
 
 
 def _differences(old, new, prefix=""):
@@ -213,8 +216,12 @@ def _worker_init(cfg, single_thread_gl):
         import cv2
         cv2.setNumThreads(1)
     from sim.render import Renderer, DEFAULT_LIGHTS
-    _WORKER["renderer"] = Renderer(cfg.texture, cfg.camera, background=cfg.background,
-                                   lights=cfg.lights if cfg.lights is not None else DEFAULT_LIGHTS)
+    if cfg.scene is not None:
+        from sim.scene_render import SceneRenderer
+        _WORKER["renderer"] = SceneRenderer(cfg.texture, cfg.scene)
+    else:
+        _WORKER["renderer"] = Renderer(cfg.texture, cfg.camera, background=cfg.background,
+                                       lights=cfg.lights if cfg.lights is not None else DEFAULT_LIGHTS)
     _WORKER["cfg"] = cfg
 
 
@@ -224,9 +231,48 @@ def _render_task(task):
     index, path, pose = task
     cfg = _WORKER["cfg"]
     rng = np.random.default_rng([cfg.seed, 2, index])
-    img = render_frame(_WORKER["renderer"], pose, cfg.randomization, rng)
+    if cfg.scene is not None:
+        img, _ = _WORKER["renderer"].frame(pose, rng)
+    else:
+        img = render_frame(_WORKER["renderer"], pose, cfg.randomization, rng)
     write_atomic(path, encode_png(img))
     return path
+
+
+def frame_truth(cfg, index, pose):
+    """The truth.jsonl line of frame `index` (a dict), from its generator alone (no rendering).
+
+    circle: the sphere's outline [cx, cy, r] in the undistorted frame, continuous pixel coordinates.
+    With a scene, "scene" holds the frame's whole draw (sim/scene.draw).
+    """
+    rng = np.random.default_rng([cfg.seed, 2, index])
+    line = {"file": names.format_name(*pose), "pose": list(pose)}
+    if cfg.scene is not None:
+        from sim.scene import draw
+        params = draw(cfg.scene, rng)
+        line["circle"] = params["circle"]
+        line["scene"] = {k: v for k, v in params.items() if k != "circle"}
+        return line
+    from sim.randomize import sample
+    from sim.render import DEFAULT_LIGHTS
+    cam = cfg.camera
+    du, dv, scale = 0.0, 0.0, 1.0
+    if cfg.randomization.enabled:  # the same draws, in the same order, as randomize.render_frame
+        fp = sample(cfg.randomization, rng, cfg.lights if cfg.lights is not None else DEFAULT_LIGHTS,
+                    cfg.background)
+        (du, dv), scale = fp.offset_px, fp.scale
+    u0, v0 = cam.principal
+    line["circle"] = [u0 + du, v0 + dv, cam.radius_px * scale]
+    return line
+
+
+def write_truth(cfg, out, poses):
+    """Write OUT/<split>/truth.jsonl (atomically) for every frame of the plan, in index order."""
+    lines = {}
+    for index, split, pose in poses:
+        lines.setdefault(split, []).append(json.dumps(frame_truth(cfg, index, pose)))
+    for split, text in lines.items():
+        write_atomic(os.path.join(out, split, TRUTH), ("\n".join(text) + "\n").encode())
 
 
 def _pool_context():
@@ -331,6 +377,7 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
     finally:
         if bar:
             bar.close()
+    write_truth(cfg, out, poses)
     elapsed = time.time() - t0
 
     record["complete"] = True

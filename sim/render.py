@@ -209,8 +209,17 @@ class Renderer:
     """
 
     def __init__(self, texture, camera=None, *, lights=DEFAULT_LIGHTS, background=DEFAULT_BACKGROUND,
-                 lit=True, mesh=DEFAULT_MESH, multisamples=0, mipmap=False, reduce_texture=True, gl=None):
+                 lit=True, mesh=DEFAULT_MESH, multisamples=0, mipmap=False, reduce_texture=True, gl=None,
+                 margin=None, alpha=False):
         self.camera = camera or Camera()
+        # Pixels drawn beyond the frame on each side, for the lens distortion's remap (sim/lens.py);
+        # None: what the camera's own distortion needs (0 without distortion).
+        if margin is None:
+            from sim.lens import margin_px
+            margin = margin_px(self.camera.width, self.camera.height, self.camera.focal_px,
+                               self.camera.principal, self.camera.distortion)
+        self.margin = int(margin)
+        self.alpha = bool(alpha)
         self.lights = tuple(lights)
         self.background = tuple(int(c) for c in background)
         rgb = load_texture(texture) if isinstance(texture, (str, os.PathLike)) else np.asarray(texture, np.uint8)
@@ -225,7 +234,8 @@ class Renderer:
         mapper.SetInputData(_sphere_polydata(self.camera.radius_mm, *mesh))
         mapper.ScalarVisibilityOff()
 
-        # Map texture coordinates: the equirectangular image, trilinear from mipmaps, clamped at the seam.
+        # Map texture coordinates: the equirectangular image, sampled bilinearly (trilinear from
+        # mipmaps only with mipmap=True), clamped at the seam.
         tex = vtkTexture()
         tex.SetInputData(_texture_image(rgb))
         tex.InterpolateOn()
@@ -271,12 +281,19 @@ class Renderer:
         self._window = _make_render_window(gl)
         self._window.SetMultiSamples(int(multisamples))
         self._window.AddRenderer(self._renderer)
-        self._window.SetSize(self.camera.width, self.camera.height)
+        self._window.SetSize(self.camera.width + 2 * self.margin, self.camera.height + 2 * self.margin)
+        if self.alpha:
+            # Background pixels read back with alpha 0: a scene composites its own background there.
+            self._window.SetAlphaBitPlanes(1)
+            self._renderer.SetBackgroundAlpha(0.0)
 
-        # Capture: read the back buffer of the frame just rendered, RGB only.
+        # Capture: read the back buffer of the frame just rendered, RGB (or RGBA) only.
         self._capture = vtkWindowToImageFilter()
         self._capture.SetInput(self._window)
-        self._capture.SetInputBufferTypeToRGB()
+        if self.alpha:
+            self._capture.SetInputBufferTypeToRGBA()
+        else:
+            self._capture.SetInputBufferTypeToRGB()
         self._capture.ReadFrontBufferOff()
         self._capture.ShouldRerenderOff()
 
@@ -298,32 +315,67 @@ class Renderer:
             vl.SetIntensity(float(l.intensity))
             vl.SetColor(*l.color)
 
-    def render(self, pose, *, lights=None, background=None, offset_px=(0.0, 0.0), scale=1.0):
+    def add_actor(self, actor):
+        """Another object of the scene (e.g. a mount); the clipping range then covers a deeper scene."""
+        self._renderer.AddActor(actor)
+        self._deep_scene = True
+
+    def set_material(self, ambient, diffuse, specular, specular_power):
+        """The sphere's Phong terms (vtkProperty) for the frames that follow."""
+        prop = self._actor.GetProperty()
+        prop.SetAmbient(float(ambient))
+        prop.SetDiffuse(float(diffuse))
+        prop.SetSpecular(float(specular))
+        prop.SetSpecularPower(float(specular_power))
+
+    def render(self, pose, *, lights=None, background=None, offset_px=(0.0, 0.0), scale=1.0,
+               distance_mm=None, principal=None, distortion=None):
         """RGB uint8 image [H, W, 3] (row 0 at the top) of the sphere at pose (x, y, z) degrees.
 
         lights/background override the renderer's for this frame only. offset_px moves the
-        principal point, so the sphere's image shifts by (du, dv) pixels (right, down); scale
-        multiplies the focal length. Every setting is written on every call, so a frame never
-        depends on the frames rendered before it.
+        sphere's image by (du, dv) pixels (right, down) from the principal point (a shift of the
+        pinhole image's principal point); scale multiplies the focal length; distance_mm moves the
+        camera. principal and distortion override the camera's lens (principal point (u0, v0) in
+        continuous pixels, OpenCV coefficients), applied by sim/lens.py after the pinhole render.
+        With alpha=True at construction the image is RGBA, alpha 0 on the background.
+        Every setting is written on every call, so a frame never depends on the frames before it.
         """
         cam = self.camera
         self._transform.SetMatrix(_matrix4(euler_to_matrix(*pose)))
         self._set_lights(self.lights if lights is None else lights)
         bg = self.background if background is None else background
         self._renderer.SetBackground(*(float(c) / 255.0 for c in bg))
+        m = self.margin
+        win_w, win_h = cam.width + 2 * m, cam.height + 2 * m
         # Intrinsics: focal length (scale) and principal point (offset) of this frame.
         f_px = cam.focal_px * float(scale)
-        self._vcam.SetViewAngle(math.degrees(2.0 * math.atan(cam.height / (2.0 * f_px))))
-        du, dv = offset_px
-        self._vcam.SetWindowCenter(-2.0 * float(du) / cam.width, 2.0 * float(dv) / cam.height)
+        self._vcam.SetViewAngle(math.degrees(2.0 * math.atan(win_h / (2.0 * f_px))))
+        u0, v0 = cam.principal if principal is None else principal
+        du = u0 + float(offset_px[0]) - cam.width / 2.0
+        dv = v0 + float(offset_px[1]) - cam.height / 2.0
+        self._vcam.SetWindowCenter(-2.0 * du / win_w, 2.0 * dv / win_h)
+        d = cam.distance_mm if distance_mm is None else float(distance_mm)
+        self._vcam.SetPosition(0.0, 0.0, d)
+        r = cam.radius_mm
+        if getattr(self, "_deep_scene", False):
+            self._vcam.SetClippingRange(0.2 * d, 4.0 * d)
+        else:
+            self._vcam.SetClippingRange(max(d - 2.0 * r, 0.05 * d), d + 2.0 * r)
 
         self._window.Render()
         self._capture.Modified()
         self._capture.Update()
         out = self._capture.GetOutput()
         w, h, _ = out.GetDimensions()
-        img = vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, 3)
-        return np.ascontiguousarray(np.flipud(img))
+        ch = 4 if self.alpha else 3
+        img = np.flipud(vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, ch))
+        dist = cam.distortion if distortion is None else tuple(distortion)
+        if any(dist):
+            from sim.lens import distort
+            return distort(np.ascontiguousarray(img), f_px, (u0, v0), dist, margin=m)
+        if m:
+            img = img[m:m + cam.height, m:m + cam.width]
+        return np.ascontiguousarray(img)
 
     def close(self):
         """Release the OpenGL context (also done at exit)."""

@@ -152,7 +152,7 @@ class FrameServer:
     """Serves rendered frames of `source`'s poses on Unix socket `path`."""
 
     def __init__(self, path, *, texture, camera, lights, background, source,
-                 randomization=Randomization(), seed=0, log=None, frame_log=None):
+                 randomization=Randomization(), seed=0, log=None, frame_log=None, scene=None):
         self.path = path
         self.texture = texture
         self.camera = camera
@@ -161,6 +161,7 @@ class FrameServer:
         self.source = source
         self.randomization = randomization
         self.seed = seed
+        self.scene = scene  # a sim.scene.Scene: frames of that rig (replaces background, lights, randomisation)
         self.frames = 0
         self.log = log or (lambda msg: print(f"sim vcam: {msg}", file=sys.stderr, flush=True))
         self._renderer = None
@@ -170,7 +171,10 @@ class FrameServer:
         """PNG bytes of the next frame (SourceError if the pose source fails)."""
         pose = self.source.pose()
         rng = np.random.default_rng([self.seed, self.frames])
-        png = encode_png(render_frame(self._renderer, pose, self.randomization, rng))
+        if self.scene is not None:
+            png = encode_png(self._renderer.frame(pose, rng)[0])
+        else:
+            png = encode_png(render_frame(self._renderer, pose, self.randomization, rng))
         if self._frame_log:
             x, y, z = pose
             self._frame_log.write(json.dumps({"frame": self.frames, "x": x, "y": y, "z": z}) + "\n")
@@ -223,8 +227,12 @@ class FrameServer:
         clients = {}
         try:
             srv = self._bind()  # first: a bad --socket fails before the renderer's set-up
-            self._renderer = Renderer(self.texture, self.camera, lights=self.lights,
-                                      background=self.background)
+            if self.scene is not None:
+                from sim.scene_render import SceneRenderer
+                self._renderer = SceneRenderer(self.texture, self.scene)
+            else:
+                self._renderer = Renderer(self.texture, self.camera, lights=self.lights,
+                                          background=self.background)
             sel.register(srv, selectors.EVENT_READ)
             print(f"VCAM {self.path}", flush=True)
             self.log(f"serving {self.camera.width}x{self.camera.height} frames of {self.source.describe()}")

@@ -92,10 +92,13 @@ def test_record_and_layout(tmp_path, texture_png, small_camera_json):
     assert rec["settings"]["randomization"]["noise"] == 2.0
     assert rec["counts"] == {"train": 24, "val": 8, "test": 4, "test_offgrid": 4}
     for split, n in rec["counts"].items():
-        files = os.listdir(out / split)
+        files = sorted(f for f in os.listdir(out / split) if f != "truth.jsonl")
         assert len(files) == n
         for name in files:
             names.parse_name(name)
+        truth = [json.loads(line) for line in open(out / split / "truth.jsonl")]
+        assert sorted(t["file"] for t in truth) == files
+        assert all(t["circle"] == [80.0, 64.0, truth[0]["circle"][2]] for t in truth)  # no offset or scale
     img = cv2.imread(str(out / split / files[0]))
     assert img.shape == (128, 160, 3)
 
@@ -135,7 +138,7 @@ def test_same_seed_same_bytes_any_worker_count(tmp_path, texture_png, small_came
     run_sim("dataset", *common, "--out", str(tmp_path / "b"), "--workers", "2")
     run_sim("dataset", *common, "--out", str(tmp_path / "c"), "--workers", "2", "--seed", "1")
     a, b, c = (tree_digest(tmp_path / k) for k in "abc")
-    assert len(a) == 40 and a == b
+    assert len(a) == 40 + 4 and a == b  # frames and each split's truth.jsonl
     assert a != c
 
 
@@ -168,9 +171,10 @@ def test_resume_after_kill_gives_the_uninterrupted_dataset(tmp_path, texture_png
     full = tmp_path / "full"
     run_sim("dataset", *common, "--out", str(full), "--workers", "2")
     resumed, reference = tree_digest(killed), tree_digest(full)
-    assert len(reference) == 600 and resumed == reference
+    assert len(reference) == 600 + 4 and resumed == reference  # frames and each split's truth.jsonl
     for split in SPLITS:
-        assert not [n for n in os.listdir(killed / split) if not n.endswith(".png")], "temporary files left"
+        assert not [n for n in os.listdir(killed / split) if not n.endswith((".png", ".jsonl"))], \
+            "temporary files left"
     assert json.loads((killed / "dataset.json").read_text())["complete"] is True
 
 
