@@ -35,7 +35,7 @@ TEXTURE_WIDTH = 1024  # texture width at the finest level (reduced from the mode
 DAMPING = 1e-3        # Levenberg-Marquardt: lambda * diag(J^T J) added to the normal equations
 MAX_STEP_DEG = 3.0    # a step that rotates more than this is scaled down to it
 REF_D_OVER_R = 12.5   # the reference camera's distance / sphere radius (250 mm / 20 mm)
-FD_STEP = 1e-3        # finite-difference step (pixels) for d n / d (cx, cy, r)
+FD_STEP = 1e-3        # finite-difference step (pixels) of the tests' check of d n / d (cx, cy, r)
 
 DEFAULT_CONFIDENCE = {"residual_max": 0.25, "range_margin_deg": 2.0}
 
@@ -128,16 +128,49 @@ def normals(us, vs, cx, cy, r, f):
 
 
 def normals_and_derivs(us, vs, cx, cy, r, fixed_f):
-    """normals() and their derivatives [3, N, 3] with respect to (cx, cy, r), by central
-    differences; f follows r when no camera focal length is given."""
+    """normals() and their derivatives [3, N, 3] with respect to (cx, cy, r); f follows r when
+    no camera focal length is given. Differentiating |O + t d| = 1: for a change dO, dd of the
+    camera centre and the ray, dt = -(n.dO + t n.dd) / (n.d) and dn = dO + dt d + t dd."""
+    f = focal_px(r, fixed_f)
+    x = (us - cx) / f
+    y = -(vs - cy) / f
+    tan_a = r / f
+    sec = math.sqrt(1.0 + tan_a * tan_a)
+    dist = sec / tan_a
+    L = np.sqrt(x * x + y * y + 1.0)
+    inv = 1.0 / L
+    d = np.stack([x * inv, y * inv, -inv], axis=1)
+    od = dist * d[:, 2]
+    t = -od - np.sqrt(np.maximum(od * od - dist * dist + 1.0, 0.0))
+    n = t[:, None] * d
+    n[:, 2] += dist
+    zero = np.zeros_like(x)
+    if fixed_f:   # r moves the camera away: d dist / d r, the rays stay
+        dq_r = np.stack([zero, zero, zero], axis=1)
+        dD_r = -(1.0 / f) / (tan_a * tan_a * sec)
+    else:         # f scales with r: the rays move, the distance stays
+        dq_r = np.stack([-x / r, -y / r, zero], axis=1)
+        dD_r = 0.0
+    out = []
+    for dq, dD in ((np.stack([zero - 1.0 / f, zero, zero], axis=1), 0.0),
+                   (np.stack([zero, zero + 1.0 / f, zero], axis=1), 0.0),
+                   (dq_r, dD_r)):
+        dd = (dq - d * (d * dq).sum(axis=1, keepdims=True)) * inv[:, None]
+        ndd = (n * dd).sum(axis=1)
+        dt = -(n[:, 2] * dD + t * ndd) / (n * d).sum(axis=1)
+        dn = dt[:, None] * d + t[:, None] * dd
+        dn[:, 2] += dD
+        out.append(dn)
+    return n, np.stack(out)
+
+
+def normals_and_derivs_fd(us, vs, cx, cy, r, fixed_f, h=FD_STEP):
+    """The same derivatives by central differences (a check of the analytic ones)."""
     def n_at(cx_, cy_, r_):
         return normals(us, vs, cx_, cy_, r_, focal_px(r_, fixed_f))
-    n = n_at(cx, cy, r)
-    h = FD_STEP
-    d = np.stack([(n_at(cx + h, cy, r) - n_at(cx - h, cy, r)) / (2 * h),
-                  (n_at(cx, cy + h, r) - n_at(cx, cy - h, r)) / (2 * h),
-                  (n_at(cx, cy, r + h) - n_at(cx, cy, r - h)) / (2 * h)])
-    return n, d
+    return n_at(cx, cy, r), np.stack([(n_at(cx + h, cy, r) - n_at(cx - h, cy, r)) / (2 * h),
+                                      (n_at(cx, cy + h, r) - n_at(cx, cy - h, r)) / (2 * h),
+                                      (n_at(cx, cy, r + h) - n_at(cx, cy, r - h)) / (2 * h)])
 
 
 def sample(tex, b):
