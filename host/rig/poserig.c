@@ -61,6 +61,8 @@ static void usage(FILE *f) {
           "  --out DIR           output folder (default poserig-out; created)\n"
           "  --save-frames       also save each frame as OUT/frames/<x>_<y>_<z>.png\n"
           "  --retries N         after a reset or alarm mid-move, recover and retry a pose N times (default 1)\n"
+          "  --allow-default-settings  run even when the controller restored its default settings\n"
+          "                      (EEPROM CRC failure); without it such a stage is refused\n"
           "  --threads N         inference threads (default: libposeinfer's)\n"
           "  --camera-timeout MS connect/grab deadline of unix: cameras (default 5000)\n"
           "  --banner-timeout MS --timeout MS --poll MS --move-timeout MS   stage client deadlines\n"
@@ -165,6 +167,7 @@ int main(int argc, char **argv) {
         {"threads", required_argument, 0, 't'},   {"camera-timeout", required_argument, 0, 'C'},
         {"banner-timeout", required_argument, 0, 'b'}, {"timeout", required_argument, 0, 'T'},
         {"poll", required_argument, 0, 'l'},      {"move-timeout", required_argument, 0, 'M'},
+        {"allow-default-settings", no_argument, 0, 'D'},
         {"verbose", no_argument, 0, 'v'},         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
@@ -173,7 +176,7 @@ int main(int argc, char **argv) {
     unsigned long long seed = 1;
     int nrandom = 0, home = 0, settle_ms = 300, discard = 0, save_frames = 0, retries = 1;
     int cam_timeout = 5000, c, i, npose = 0, nrows = 0, failed = 0, rc = EXIT_USAGE;
-    int cam_fail_run = 0, longidx = 0;
+    int cam_fail_run = 0, longidx = 0, allow_defaults = 0;
     char err[RIG_ERR_LEN];
     char pierr[PI_ERR_LEN], path[4096], plan_desc[256], startbuf[32];
     const char *stopped = NULL;
@@ -227,6 +230,7 @@ int main(int argc, char **argv) {
             if (parse_int(optarg, 1, 36000000, &so.move_timeout_ms) != 0) goto badarg;
             so.home_timeout_ms = so.move_timeout_ms;
             break;
+        case 'D': allow_defaults = 1; break;
         case 'v': so.log = stderr; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return EXIT_USAGE;
@@ -286,6 +290,17 @@ int main(int argc, char **argv) {
     if (stage_open(&st, port, &so, err) != 0) goto setup_fail;
     fprintf(stderr, "poserig: stage %s on %s (%s), state %s\n", st.banner[0] ? st.banner : "(no banner)",
             st.path, st.via_termios ? "termios" : "libserialport", st.last.state);
+    /* Defaults mean other steps per degree and limits than the rig's: every
+     * pose would be measured against a wrong angle, quietly. */
+    if (st.defaults_restored && !allow_defaults) {
+        fprintf(stderr, "poserig: the stage says '%s'\n", st.restored_msg);
+        rig_seterr(err, "stage %.60s runs on the firmware's default settings, not the rig's: set them "
+                   "again (stagectl settings, stagectl set) or give --allow-default-settings", st.path);
+        goto setup_fail;
+    }
+    if (st.defaults_restored)
+        fprintf(stderr, "poserig: warning: the stage runs on default settings ('%s'); going on as told "
+                        "(--allow-default-settings)\n", st.restored_msg);
     if (home) {
         fprintf(stderr, "poserig: homing\n");
         if (stage_home(&st, err) != 0) goto setup_fail;

@@ -285,6 +285,12 @@ static stage_line_kind note_line(stage *s, const char *line, int *code) {
         break;
     case STAGE_LINE_MSG:
         if (strstr(line, "to unlock")) s->needs_unlock = 1;
+        /* "[MSG:EEPROM settings failed CRC check, defaults restored]" (or the
+         * coordinate data's): said once, after the boot banner; kept until close. */
+        if (strstr(line, "failed CRC check")) {
+            s->defaults_restored = 1;
+            snprintf(s->restored_msg, sizeof(s->restored_msg), "%s", line);
+        }
         break;
     case STAGE_LINE_STATUS: {
         stage_status_report st;
@@ -693,6 +699,40 @@ fail:
     return -1;
 }
 
+/* End what an earlier client or line noise left in the controller's line
+ * buffer without a newline: it would be glued onto our first command
+ * ("G0 X" + "$X" = "G0 X$X", an error for a command that was fine). The line
+ * break makes it a line of its own, and its reply (ok for an empty buffer,
+ * error:N for junk) is read here, never taken for the next command's. */
+static int end_stray_line(stage *s, char *err) {
+    char line[256];
+    long long deadline;
+    int code;
+    trace(s, "> ", "(line break)");
+    if (write_all(s, "\n", 1, err) != 0) return -1;
+    deadline = now_ms() + s->o.reply_timeout_ms;
+    for (;;) {
+        int r = read_line(s, line, sizeof(line), deadline, err);
+        if (r < 0) return -1;
+        if (r == 0) {
+            rig_seterr(err, "no reply to a line break within %d ms", s->o.reply_timeout_ms);
+            return -1;
+        }
+        switch (note_line(s, line, &code)) {
+        case STAGE_LINE_OK:
+            return 0;
+        case STAGE_LINE_ERROR:
+            if (s->o.log)
+                fprintf(s->o.log, "stage: bytes left on the line before this session were refused "
+                        "(error:%d)\n", code);
+            s->last_error = 0;
+            return 0;
+        default:
+            break;
+        }
+    }
+}
+
 int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
     char why[RIG_ERR_LEN], derr[RIG_ERR_LEN];
     int r;
@@ -726,6 +766,7 @@ int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
         goto fail;
     }
     if (r == 2 && s->o.log) fprintf(s->o.log, "stage: no banner, but the controller answers\n");
+    if (end_stray_line(s, derr) != 0) goto fail;
     s->reset_seen = 0;
     if (stage_status(s, NULL, derr) != 0) goto fail;
     if (strcmp(s->last.state, "Alarm") == 0) s->needs_unlock = 1;

@@ -49,6 +49,9 @@ typedef struct {
     int last_alarm;            /* N of the last ALARM:N, 0 if none or cleared */
     int reset_seen;            /* a banner arrived unasked: the controller restarted */
     int needs_unlock;          /* the controller said "'$H'|'$X' to unlock" */
+    int defaults_restored;     /* the controller said its EEPROM failed its CRC check and it now runs on
+                                  defaults (steps/degree, limits, rates, offsets): not the rig's values */
+    char restored_msg[96];     /* that message, as it came */
     double wco[STAGE_AXES];    /* last work offset seen in a status report */
     stage_status_report last;  /* last status report */
     int dead;                  /* the port vanished: every call fails fast */
@@ -67,7 +70,10 @@ int stage_list_ports(FILE *out, char *err);
 int stage_find_arduino(char *path, int len, char *err);
 
 /* Open port ("auto" = stage_find_arduino), wait for the banner (probing with
- * '?' and then a soft reset if none comes). o may be NULL for defaults. */
+ * '?' and then a soft reset if none comes), then send a line break and read
+ * its reply, so that bytes left on the line without one are not glued onto
+ * the first command. o may be NULL for defaults. A boot message that the
+ * EEPROM failed its CRC check sets defaults_restored (callers report it). */
 int stage_open(stage *s, const char *port, const stage_opts *o, char *err);
 
 /* Close the port (idempotent). */

@@ -38,6 +38,9 @@ static void usage(FILE *f) {
           "  -v, --verbose     trace the serial traffic on stderr\n"
           "  -h, --help        this text\n"
           "\n"
+          "A controller that restored its default settings (EEPROM failed its CRC check) is\n"
+          "reported on stderr after the command.\n"
+          "\n"
           "Exit status: 0 done, 1 the stage failed or refused, 2 usage error.\n",
           f);
 }
@@ -203,6 +206,10 @@ fail:
     fprintf(stderr, "stagectl: %s\n", err);
     rc = 1;
 out:
+    if (s.defaults_restored)   /* the firmware says it once, at boot: this may be the only chance */
+        fprintf(stderr, "stagectl: warning: the controller says '%s': it runs on the firmware's default "
+                        "settings (steps per degree, limits, rates), not the rig's; compare 'stagectl settings' "
+                        "with the rig's values and set them again\n", s.restored_msg);
     stage_close(&s);
     return rc;
 badarg:

@@ -11,6 +11,9 @@ Script lines (one directive each; '#' starts a comment line):
   send TEXT        write TEXT + CRLF (banner, ok, error:N, ALARM:N, [MSG:...])
   raw HEX          write raw bytes given in hex (no line ending added)
   garbage N        write N pseudo-random bytes (seeded), then CRLF
+  junk TEXT        TEXT waits in the fake's line buffer, as bytes an earlier
+                   client left without a newline: the host's next line
+                   break completes it (then "expect TEXT" sees it)
   expect TEXT      next line from the host must equal TEXT
   expect_re RE     next line from the host must match RE (fullmatch)
   expect_rt HEX    wait for the real-time byte HEX (18 reset, 21 '!', 3f '?')
@@ -25,8 +28,12 @@ Script lines (one directive each; '#' starts a comment line):
                    polls (default 2) then Idle at the target, 0x18 -> banner
   end              the script is over: further lines from the host fail
 
---log FILE records what the host sent, one item a line: "line TEXT" or
-"rt 0xNN" for a real-time byte (the '?' polls are counted, not logged).
+An empty line from the host is answered "ok" at once, as GRBL does (a
+client sends one when it connects); scripts never see it.
+
+--log FILE records what the host sent, one item a line: "line TEXT",
+"break" for an empty line, or "rt 0xNN" for a real-time byte (the '?'
+polls are counted, not logged).
 
 Exit status (after SIGTERM, or at "close"): 0 when every expectation held and
 the script ran to its end, 1 on a failed expectation (printed on stderr, and
@@ -105,6 +112,10 @@ class Fake:
             if b == 0x0A:
                 line = self.buf.decode("latin-1").strip("\r")
                 self.buf = b""
+                if line == "":
+                    self.note("break")
+                    self.send("ok")
+                    continue
                 self.note("line " + line)
                 if self.auto is not None:
                     self.auto_line(line)
@@ -206,6 +217,8 @@ class Fake:
                 self.send(arg)
             elif op == "raw":
                 self.write(bytes.fromhex(arg))
+            elif op == "junk":
+                self.buf += arg.encode("latin-1")
             elif op == "garbage":
                 rnd = random.Random(int(arg) * 7919)
                 self.write(bytes(rnd.choice([b for b in range(256) if b not in RT and b != 0x0A])

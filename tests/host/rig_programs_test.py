@@ -141,6 +141,27 @@ def test_stagectl_vanished_port(fake):
     assert "vanished" in r.stderr
 
 
+EEPROM_MSG = "[MSG:EEPROM settings failed CRC check, defaults restored]"
+
+
+def test_stagectl_reports_default_settings(fake):
+    """The controller restored its defaults (EEPROM CRC): stagectl runs the command and says so."""
+    f = fake(BANNER + f"\nsend {EEPROM_MSG}\nauto\n")
+    r = stagectl("--port", f.pty, "pos")
+    assert r.returncode == 0, r.stderr
+    assert "warning" in r.stderr and EEPROM_MSG in r.stderr and "stagectl settings" in r.stderr
+    r = stagectl("--port", f.pty, "pos")       # a later session (no boot message): quiet
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+
+
+def test_stagectl_ends_stray_bytes_first(fake):
+    """Junk an earlier client left without a newline is ended by the line break sent on connecting."""
+    f = fake("junk $X G0\n" + BANNER + "\nexpect $X G0\nsend error:3\npolls 1\nexpect $X\nsend ok\nend\n")
+    r = stagectl("--port", f.pty, "unlock")
+    assert r.returncode == 0, r.stderr
+    assert f.stop() == 0, f.stderr
+
+
 def test_stagectl_missing_port():
     r = stagectl("--port", "/nonexistent/ttyACM9", "pos")
     assert r.returncode == 1
@@ -331,6 +352,23 @@ def test_poserig_plan_with_failures(tmp_path, fake, camera, model):
     assert "2 failed" in r.stdout
     assert "Poses without an estimate" in (out / "summary.md").read_text()
     assert [l[5:] for l in f.log_lines() if l.startswith("line ")][0] == "$H"
+
+
+def test_poserig_refuses_default_settings(tmp_path, fake, camera, model):
+    """A stage on its firmware defaults (EEPROM CRC) is refused unless --allow-default-settings."""
+    f = fake(BANNER + f"\nsend {EEPROM_MSG}\nend\n")
+    cam = camera([sphere_frame(1)])
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", model, "--random", 2,
+                "--out", tmp_path / "run")
+    assert r.returncode == 2, r.stderr
+    assert EEPROM_MSG in r.stderr and "--allow-default-settings" in r.stderr
+    assert f.stop() == 0, f.stderr   # nothing but the line break and status queries was sent
+    assert cam.grabs == 0
+    f = fake(BANNER + f"\nsend {EEPROM_MSG}\nauto 1\n")
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", model, "--random", 2,
+                "--settle", 0, "--out", tmp_path / "run2", "--allow-default-settings")
+    assert r.returncode == 0, r.stderr
+    assert "warning" in r.stderr and "default settings" in r.stderr
 
 
 def test_poserig_refuses_alarm_without_home(tmp_path, fake, camera, model):

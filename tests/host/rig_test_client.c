@@ -120,6 +120,7 @@ static void test_open_settings(void **state) {
             "send $0=10\nsend $100=800.000\nsend $110=720.000 (x max rate)\nsend ok\n"
             "expect $101=812.5\nsend ok\nend\n");
     assert_string_equal(s.banner, "Grbl 1.1h ['$' for help]");
+    assert_int_equal(s.defaults_restored, 0);
     assert_int_equal(stage_get_settings(&s, set, 8, &n, err), 0);
     assert_int_equal(n, 3);
     assert_int_equal(set[1].n, 100);
@@ -260,6 +261,38 @@ static void test_garbage_ignored(void **state) {
             "expect $X\ngarbage 300\nraw 00ff0d0a\nsend <Idle|MPos:bogus>\n"
             "send [MSG:Caution: Unlocked]\nsend ok\nend\n");
     if (stage_unlock(&s, err) != 0) fail_msg("%s", err);
+    stage_close(&s);
+    assert_int_equal(fake_stop(&f), 0);
+}
+
+/* Bytes an earlier client left without a newline ("G0 X") would be glued
+ * onto the first command ("G0 X$X": refused). The client's line break on
+ * connecting ends them as a line of their own; their error reply is read
+ * then, not taken for the first command's. */
+static void test_stray_bytes_ended_on_connect(void **state) {
+    fake f;
+    stage s;
+    char err[RIG_ERR_LEN];
+    (void)state;
+    open_ok(&s, &f, "junk G0 X\n" BANNER "expect G0 X\nsend error:2\npolls 1\n"
+            "expect $X\nsend ok\nend\n");
+    assert_int_equal(s.last_error, 0);
+    if (stage_unlock(&s, err) != 0) fail_msg("%s", err);
+    stage_close(&s);
+    assert_int_equal(fake_stop(&f), 0);
+}
+
+/* A controller whose EEPROM failed its CRC check says so once, after its
+ * boot banner, and runs on defaults: the client keeps the fact for its
+ * callers (stagectl reports it, poserig refuses to measure). */
+static void test_eeprom_defaults_noted(void **state) {
+    fake f;
+    stage s;
+    (void)state;
+    open_ok(&s, &f, BANNER "send [MSG:EEPROM settings failed CRC check, defaults restored]\n"
+            "polls 1\nend\n");
+    assert_int_equal(s.defaults_restored, 1);
+    assert_string_equal(s.restored_msg, "[MSG:EEPROM settings failed CRC check, defaults restored]");
     stage_close(&s);
     assert_int_equal(fake_stop(&f), 0);
 }
@@ -406,6 +439,8 @@ int main(void) {
         cmocka_unit_test(test_reply_timeout),
         cmocka_unit_test(test_late_reply_not_taken_for_next),
         cmocka_unit_test(test_garbage_ignored),
+        cmocka_unit_test(test_stray_bytes_ended_on_connect),
+        cmocka_unit_test(test_eeprom_defaults_noted),
         cmocka_unit_test(test_port_vanishes),
         cmocka_unit_test(test_no_banner_but_answers),
         cmocka_unit_test(test_silent_until_reset),
