@@ -4,15 +4,17 @@ For each of Texture_{1,2,3}_{bw,color}: render a dataset (`sim dataset`), train,
 evaluate on validation, test and off-grid test, then write OUT/report.md with
 a Table 1 (validation) and a Table 2 (test) in the paper's columns, the paper's
 numbers beside ours, the ordering of the textures by error, and figures.
-Resumable: a texture whose run finished (OUT/runs/<texture>/metrics.json) is
-not trained again, and `sim dataset` resumes its own folders.
+Resumable: a texture whose run finished (OUT/runs/<texture>/metrics.json and
+run.json) is not trained again, an unfinished run resumes from its
+checkpoint.pth, and `sim dataset` resumes its own folders.
 
 Profiles:
 - quick: the P1 pose split (1,600 / 597 / 100 grid poses + 100 off-grid),
   frames at half the reference camera's resolution (320 x 256, f 8 mm: the
   same view, the sphere 133 px across), 64 px input, MobileNetV2, 8 epochs:
   minutes per texture on a 2-core CPU.
-- p1: the paper's protocol, 128 px, MobileNetV2, 20 epochs (a GPU run).
+- p1: the paper's protocol, 128 px, MobileNetV2, 20 epochs: minutes per
+  texture on a GPU, about 20 minutes on a 2-core CPU (docs/bench/training.md).
 - smoke: a few frames, one epoch: checks the plumbing only.
 """
 import datetime
@@ -27,6 +29,7 @@ import numpy as np
 from . import metrics as M
 from .export import ExportMismatch
 from . import plots
+from .train import options, train
 
 TEXTURES = ("Texture_1_bw", "Texture_1_color", "Texture_2_bw", "Texture_2_color", "Texture_3_bw",
             "Texture_3_color")
@@ -104,7 +107,6 @@ def run_study(args):
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     tdir, textures = ensure_textures(args, out)
-    from .cli import get_args_parser, train
     results, timings = {}, {}
     for tex in textures:
         ds = out / "datasets" / tex
@@ -120,19 +122,13 @@ def run_study(args):
         if (run / "metrics.json").exists() and (run / "run.json").exists():
             print(f"study: {tex}: finished run found in {run}, not retrained", flush=True)
         else:
-            targv = ["train", "--data", str(ds), "--out", str(run), "--texture", tex, "--arch", prof["arch"],
-                     "--size", str(prof["size"]), "--epochs", str(prof["epochs"]), "-b", str(prof["batch_size"]),
-                     "--seed", str(args.seed), "--device", args.device, "--threads", str(args.threads),
-                     "--workers", str(args.workers)]
-            if not args.progress:
-                targv.append("--no-progress")
-            if not args.cache:
-                targv.append("--no-cache")
             ck = run / "checkpoint.pth"
-            if ck.exists():
-                targv += ["--resume", str(ck)]
+            opts = options(ds, run, texture=tex, arch=prof["arch"], size=prof["size"], epochs=prof["epochs"],
+                           batch_size=prof["batch_size"], seed=args.seed, device=args.device,
+                           threads=args.threads, workers=args.workers, progress=args.progress,
+                           cache=args.cache, resume=str(ck) if ck.exists() else None)
             try:
-                train(get_args_parser().parse_args(targv))
+                train(opts)
             except ExportMismatch as e:  # metrics are written; the report says the export failed
                 print(f"study: {tex}: error: {e}", file=sys.stderr, flush=True)
                 (run / "export_error.txt").write_text(str(e) + "\n")
