@@ -1,8 +1,8 @@
 /* stage.h -- client for the stage firmware's GRBL 1.1 serial protocol.
  *
  * One stage per serial port. Every function returns 0 on success or -1 with
- * err (RIG_ERR_LEN bytes, rig_err.h) filled as "call: reason"; none aborts on what
- * the controller sends, and every wait has a deadline (stage_opts).
+ * err (RIG_ERR_LEN bytes, rig_err.h) filled as "call: reason"; none aborts
+ * on what the controller sends, and every wait has a deadline (stage_opts).
  *
  * Ports: real serial ports are found and opened through libserialport
  * (115200 8N1, no flow control). libserialport 0.1.1 refuses pseudo-terminals
