@@ -38,6 +38,8 @@ typedef struct pi_options {
     int intra_threads;  /* ONNX Runtime intra-op threads; 0 = library default (1) */
     int warmup_runs;    /* inference runs on a dummy tensor at open; default 1 */
     long max_pixels;    /* refuse frames with more pixels; 0 = PI_DEFAULT_MAX_PIXELS */
+    int no_refine;      /* 1: the network's angles, not refined (the residual still at them) */
+    double focal_px;    /* camera focal length in pixels for refinement; 0 = from the circle */
 } pi_options;
 
 typedef struct pi_result {
@@ -49,7 +51,18 @@ typedef struct pi_result {
     double decode_ms;      /* image decode (0 for raw frames) */
     double preprocess_ms;  /* find sphere, crop, resize, normalise */
     double infer_ms;       /* OrtRun */
-    double total_ms;       /* decode + preprocess + infer, wall clock */
+    double total_ms;       /* decode + preprocess + infer (+ refine), wall clock */
+    /* Refinement and confidence (docs/refine.md). has_confidence is 0 for a
+     * model without its texture (spherepose.texture_png): then x, y, z are the
+     * network's and nothing below is set. */
+    int has_confidence;
+    int confident;         /* 1: residual and pose within the model's thresholds */
+    double residual;       /* unexplained fraction of the frame's variance in the circle */
+    char note[160];        /* why not confident ("" when confident) */
+    int refined;           /* 1: x, y, z (and rotmat) are refined */
+    double net[3];         /* the network's angles */
+    double rcx, rcy, rr;   /* refined circle, continuous pixel coordinates */
+    double refine_ms;
 } pi_result;
 
 /* A raw 8-bit frame. channels: 1 (gray), 3 (BGR) or 4 (BGRA); stride in bytes

@@ -21,6 +21,7 @@ void config_init(pi_config *c)
     c->threads = 1;
     c->warmup = 1;
     c->max_pixels = PI_DEFAULT_MAX_PIXELS;
+    c->refine = 1;
     c->timeout_ms = 5000;
     c->socket_mode = 0660;
 }
@@ -128,6 +129,7 @@ int config_set(pi_config *c, const char *key_in, const char *v, char *err)
     if (!strcmp(key, "camera")) return set_str(&c->camera, v, err);
     if (!strcmp(key, "continuous")) return set_bool(&c->continuous, key, v, err);
     if (!strcmp(key, "timings")) return set_bool(&c->timings, key, v, err);
+    if (!strcmp(key, "refine")) return set_bool(&c->refine, key, v, err);
     if (!strcmp(key, "count")) return set_long(&c->count, key, v, 0, LONG_MAX, err);
     if (!strcmp(key, "interval_ms")) return set_int(&c->interval_ms, key, v, 0, 3600000, err);
     if (!strcmp(key, "threads")) return set_int(&c->threads, key, v, 1, 256, err);

@@ -16,6 +16,7 @@ typedef struct pi_config {
     long max_pixels;    /* max_pixels = N: refuse larger frames */
     int timeout_ms;     /* timeout_ms = N: frame-server timeout */
     int timings;        /* timings = yes|no: add decode/preprocess/infer ms */
+    int refine;         /* refine = yes|no: refine against the model's texture (docs/refine.md) */
     /* The daemon as a shared service (docs/poseinfer.md, "Who may ask for what"). */
     int socket_mode;    /* socket_mode = 0660: permissions of the unix: socket */
     char *socket_group; /* socket_group = NAME|GID: group of the unix: socket */

@@ -49,6 +49,8 @@ static void usage(FILE *f)
         "      --max-pixels N     refuse larger images (default 67108864) [max_pixels]\n"
         "      --timeout-ms N     frame-server timeout (default 5000) [timeout_ms]\n"
         "      --timings          add decode_ms, preprocess_ms, infer_ms, cx, cy, r [timings]\n"
+        "      --no-refine        the network's angles, not refined against the model's texture\n"
+        "                         (the residual and confidence still at them) [refine = no]\n"
         "      --allow-dir DIR    the daemon's `infer PATH` may read files beneath DIR; repeat for\n"
         "                         more (default none: frames come from the camera or the socket) [allow_dir]\n"
         "      --dump-tensor OUT  write the network input of the one IMAGE as raw float32 [3,S,S]\n"
@@ -77,6 +79,7 @@ static const struct option long_opts[] = {
     {"timings", no_argument, 0, 9},
     {"dump-tensor", required_argument, 0, 10},
     {"allow-dir", required_argument, 0, 11},
+    {"no-refine", no_argument, 0, 40},
     {"help", no_argument, 0, 'h'},
     {0, 0, 0, 0},
 };
@@ -257,6 +260,7 @@ int main(int argc, char **argv)
             allow_flag = 1;
             key = "allow_dir";
             break;
+        case 40: key = "refine"; val = "no"; break;
         case 'h': usage(stdout); rc = 0; goto out;
         default: usage(stderr); goto out;
         }
@@ -292,6 +296,7 @@ int main(int argc, char **argv)
     o.intra_threads = cfg.threads;
     o.warmup_runs = cfg.warmup;
     o.max_pixels = cfg.max_pixels;
+    o.no_refine = !cfg.refine;
     a.cfg = &cfg;
     a.started_ms = pi_now_ms();
     a.ctx = pi_open(cfg.model, &o, err);

@@ -18,6 +18,7 @@
 
 #include "internal.h"
 #include "json.h"
+#include "refine.h"
 #include "shim.h"
 
 #define META_PREPROCESS "spherepose.preprocess"
@@ -36,6 +37,11 @@ struct pi_ctx {
     int has_rotmat;
     pp_params pp;
     long max_pixels;
+    rf_texture *rf_tex;     /* the model's texture (NULL: no refinement), shared by clones */
+    rf_work *rf_w;          /* refinement's working memory, per context */
+    rf_conf rf_conf;        /* confidence thresholds and the model's ranges */
+    int rf_on;              /* refine (else only the residual at the network's pose) */
+    double rf_focal;        /* camera focal length in pixels, 0 = from the circle */
     size_t nmeta;
     char **meta_keys, **meta_vals;
     shim_mat *mat;          /* decoded frame of the last pi_infer_file/memory */
@@ -44,6 +50,8 @@ struct pi_ctx {
 };
 
 static clockid_t pi_clock = CLOCK_MONOTONIC;
+
+static int setup_refine(pi_ctx *ctx, const char *model, const pi_options *opt, char *err);
 
 void pi_use_cpu_clock(int on)
 {
@@ -89,6 +97,8 @@ void pi_options_init(pi_options *o)
     o->intra_threads = 0;
     o->warmup_runs = 1;
     o->max_pixels = PI_DEFAULT_MAX_PIXELS;
+    o->no_refine = 0;
+    o->focal_px = 0;
 }
 
 /* ---- preprocessing parameters from the metadata JSON --------------------- */
@@ -401,6 +411,7 @@ pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
     }
     if (read_metadata(ctx, model_path, err) < 0) goto fail;
     if (check_contract(ctx, model_path, err) < 0) goto fail;
+    if (setup_refine(ctx, model_path, opt, err) < 0) goto fail;
 
     /* Tensors wrap buffers allocated once; Run writes into them. */
     {
@@ -454,9 +465,11 @@ void pi_close(pi_ctx *ctx)
     }
     free(ctx->meta_keys);
     free(ctx->meta_vals);
+    rf_texture_free(ctx->rf_tex);
     free(ctx->in_buf);
     free(ctx->filebuf);
     shim_mat_free(ctx->mat);
+    rf_work_free(ctx->rf_w);
     free(ctx);
 }
 
@@ -507,6 +520,111 @@ int pi_run_only(pi_ctx *ctx, char *err)
     return run_model(ctx, err);
 }
 
+/* ---- refinement and confidence (docs/refine.md) ---------------------------- */
+
+/* The texture and thresholds of the model; a model without a texture runs
+ * unrefined, which is said once per process. */
+static int setup_refine(pi_ctx *ctx, const char *model, const pi_options *opt, char *err)
+{
+    static int told;
+    const char *b64 = pi_metadata(ctx, RF_META_TEXTURE);
+    char rerr[PI_ERR_LEN];
+    ctx->rf_on = !opt->no_refine;
+    ctx->rf_focal = opt->focal_px > 0 ? opt->focal_px : 0;
+    rf_conf_defaults(&ctx->rf_conf);
+    if (rf_conf_parse(&ctx->rf_conf, pi_metadata(ctx, RF_META_CONFIDENCE), pi_metadata(ctx, "spherepose.ranges"),
+                      rerr, sizeof rerr) < 0) {
+        pi_seterr(err, "pi_open(%s): %s", model, rerr);
+        return -1;
+    }
+    if (!b64) {
+        if (!told++)
+            fprintf(stderr, "poseinfer: %s carries no texture (metadata %s): angles are not refined and "
+                    "have no confidence; add it with python -m training.refine add-texture\n", model, RF_META_TEXTURE);
+        return 0;
+    }
+    unsigned char *png = NULL;
+    size_t len = 0;
+    shim_mat *m = NULL;
+    pi_frame tf;
+    if (rf_base64_decode(b64, &png, &len) < 0) {
+        pi_seterr(err, "pi_open(%s): metadata %s: not base64", model, RF_META_TEXTURE);
+        return -1;
+    }
+    m = shim_mat_new();
+    if (!m || shim_decode(m, png, len, 64L * 1024 * 1024, &tf, rerr) < 0) {
+        pi_seterr(err, "pi_open(%s): metadata %s: %s", model, RF_META_TEXTURE, m ? rerr : "out of memory");
+        goto fail;
+    }
+    {
+        rf_image ti = {tf.data, tf.width, tf.height, tf.channels, tf.stride};
+        ctx->rf_tex = rf_texture_new(&ti, rerr);
+    }
+    if (!ctx->rf_tex) {
+        pi_seterr(err, "pi_open(%s): metadata %s: %s", model, RF_META_TEXTURE, rerr);
+        goto fail;
+    }
+    shim_mat_free(m);
+    free(png);
+    return 0;
+fail:
+    shim_mat_free(m);
+    free(png);
+    return -1;
+}
+
+/* Refine the network's angles (or only measure the residual at them) and
+ * judge them. A failed refinement is a result that is not confident, not an
+ * error: the network's angles still stand. */
+static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
+{
+    char rerr[sizeof res->note];
+    double t0 = pi_now_ms(), R0[3][3];
+    rf_out o;
+    res->net[0] = res->x;
+    res->net[1] = res->y;
+    res->net[2] = res->z;
+    res->has_confidence = 0;
+    res->refined = 0;
+    res->note[0] = 0;
+    if (!ctx->rf_tex) return;
+    res->has_confidence = 1;
+    res->confident = 0;
+    res->residual = NAN;
+    if (!ctx->rf_w && !(ctx->rf_w = rf_work_new())) {
+        snprintf(res->note, sizeof res->note, "refinement: out of memory");
+        return;
+    }
+    rf_euler_to_matrix(res->net, R0);
+    {
+        rf_image fi = {frame->data, frame->width, frame->height, frame->channels,
+                       frame->stride ? frame->stride : (size_t)frame->width * frame->channels};
+        /* the localisation's circle is in OpenCV's pixel coordinates (centres
+         * at integers); refinement works in the conventions' (centres at +0.5) */
+        if (rf_refine(ctx->rf_tex, ctx->rf_w, &fi, res->cx + 0.5, res->cy + 0.5, res->r + 0.5, R0, ctx->rf_focal,
+                      ctx->rf_on, &o, rerr, sizeof rerr) < 0) {
+            snprintf(res->note, sizeof res->note, "%s", rerr);
+            res->refine_ms = pi_now_ms() - t0;
+            return;
+        }
+    }
+    res->residual = o.residual;
+    if (ctx->rf_on) {
+        res->refined = 1;
+        res->x = o.euler[0];
+        res->y = o.euler[1];
+        res->z = o.euler[2];
+        res->rcx = o.cx;
+        res->rcy = o.cy;
+        res->rr = o.r;
+        if (res->has_rotmat)
+            memcpy(res->rotmat, o.R, sizeof o.R);
+    }
+    res->confident = rf_judge(&ctx->rf_conf, o.residual, ctx->rf_on ? o.euler : res->net, ctx->rf_on,
+                              res->note, sizeof res->note);
+    res->refine_ms = pi_now_ms() - t0;
+}
+
 int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err)
 {
     double t0 = pi_now_ms(), t1;
@@ -534,6 +652,7 @@ int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err
     res->has_rotmat = ctx->has_rotmat;
     if (ctx->has_rotmat)
         for (int i = 0; i < 9; i++) res->rotmat[i / 3][i % 3] = ctx->rot[i];
+    refine_result(ctx, frame, res);
     res->total_ms = res->decode_ms + (pi_now_ms() - t0);
     return 0;
 }

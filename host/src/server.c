@@ -94,6 +94,11 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
     sb_puts(s, ", \"y\": "); sb_json_num(s, r->y, 4);
     sb_puts(s, ", \"z\": "); sb_json_num(s, r->z, 4);
     sb_puts(s, ", \"ms\": "); sb_json_num(s, r->total_ms, 3);
+    /* docs/refine.md: null when the model carries no texture */
+    sb_puts(s, r->has_confidence ? (r->confident ? ", \"confident\": true" : ", \"confident\": false")
+                                 : ", \"confident\": null");
+    sb_puts(s, ", \"residual\": "); sb_json_num(s, r->has_confidence ? r->residual : NAN, 5);
+    if (r->has_confidence && !r->confident) { sb_puts(s, ", \"note\": "); sb_json_str(s, r->note); }
     if (r->has_rotmat) {
         sb_puts(s, ", \"rotmat\": [");
         for (int i = 0; i < 3; i++) {
@@ -110,6 +115,9 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
         sb_puts(s, ", \"decode_ms\": "); sb_json_num(s, r->decode_ms, 3);
         sb_puts(s, ", \"preprocess_ms\": "); sb_json_num(s, r->preprocess_ms, 3);
         sb_puts(s, ", \"infer_ms\": "); sb_json_num(s, r->infer_ms, 3);
+        sb_puts(s, ", \"refine_ms\": "); sb_json_num(s, r->refine_ms, 3);
+        sb_puts(s, ", \"net\": ["); sb_json_num(s, r->net[0], 4); sb_puts(s, ", ");
+        sb_json_num(s, r->net[1], 4); sb_puts(s, ", "); sb_json_num(s, r->net[2], 4); sb_puts(s, "]");
         sb_puts(s, ", \"cx\": "); sb_json_num(s, r->cx, 2);
         sb_puts(s, ", \"cy\": "); sb_json_num(s, r->cy, 2);
         sb_puts(s, ", \"r\": "); sb_json_num(s, r->r, 2);

@@ -1,0 +1,642 @@
+/* refine.c -- render-and-compare refinement (training/refine.py in C).
+ *
+ * Each step renders the texture analytically into the frame's geometry at
+ * the sampled pixels (pinhole ray, sphere intersection, body direction R^T n,
+ * bilinear texture lookup), fits the photometric model per channel by least
+ * squares (I ~ T (a0 + a.n) + b), and takes a damped Gauss-Newton step over
+ * the rotation (3), the circle's centre (2) and radius (1). Coarse to fine on
+ * 2x2 box pyramids of the frame's crop and of the texture. Every arithmetic
+ * choice follows the Python file so that both land on the same pose. */
+#define _POSIX_C_SOURCE 200809L
+#include "refine.h"
+#include "json.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#ifndef M_PI
+#define M_PI 3.14159265358979323846
+#endif
+
+struct rf_texture {
+    int w[RF_LEVELS], h[RF_LEVELS];
+    double *px[RF_LEVELS];          /* [h][w][3], BGR */
+};
+
+/* Per sampled pixel: what the second pass of a step needs. */
+typedef struct rf_pix {
+    double obs[3], val[3], n[3];
+    double jw[3][3];                /* d val_c / d omega (world rotation vector) */
+    double jt[3][3];                /* d val_c / d (cx, cy, r) */
+    int flat;                       /* the texture is constant around it: J = 0 */
+} rf_pix;
+
+struct rf_work {
+    double *lev[RF_LEVELS];         /* frame crop pyramid, [h][w][3] */
+    size_t cap[RF_LEVELS];
+    int w[RF_LEVELS], h[RF_LEVELS];
+    rf_pix *pix;
+    size_t pcap;
+};
+
+static const int rf_iters[RF_LEVELS] = RF_ITERS_INIT;
+static const int rf_strides[RF_LEVELS] = RF_STRIDES_INIT;
+
+static void seterr(char *err, size_t len, const char *msg)
+{
+    if (err && len) snprintf(err, len, "%s", msg);
+}
+
+/* ---- conversions ------------------------------------------------------------ */
+
+void rf_euler_to_matrix(const double e[3], double R[3][3])
+{
+    const double d = M_PI / 180.0;
+    double cx = cos(e[0] * d), sx = sin(e[0] * d), cy = cos(e[1] * d), sy = sin(e[1] * d);
+    double cz = cos(e[2] * d), sz = sin(e[2] * d);
+    R[0][0] = cz * cy; R[0][1] = cz * sy * sx - sz * cx; R[0][2] = cz * sy * cx + sz * sx;
+    R[1][0] = sz * cy; R[1][1] = sz * sy * sx + cz * cx; R[1][2] = sz * sy * cx - cz * sx;
+    R[2][0] = -sy;     R[2][1] = cy * sx;                R[2][2] = cy * cx;
+}
+
+void rf_matrix_to_euler(const double R[3][3], double e[3])
+{
+    double s = R[2][0] < -1 ? -1 : R[2][0] > 1 ? 1 : R[2][0];
+    e[1] = -asin(s) * 180.0 / M_PI;
+    e[0] = atan2(R[2][1], R[2][2]) * 180.0 / M_PI;
+    e[2] = atan2(R[1][0], R[0][0]) * 180.0 / M_PI;
+}
+
+/* Rodrigues: rotation by |w| radians about w. */
+static void rotvec_to_matrix(const double w[3], double M[3][3])
+{
+    double th = sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+    if (th < 1e-15) {
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) M[i][j] = i == j;
+        return;
+    }
+    double k[3] = {w[0] / th, w[1] / th, w[2] / th};
+    double K[3][3] = {{0, -k[2], k[1]}, {k[2], 0, -k[0]}, {-k[1], k[0], 0}};
+    double s = sin(th), c = 1 - cos(th);
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++) {
+            double kk = 0;
+            for (int m = 0; m < 3; m++) kk += K[i][m] * K[m][j];
+            M[i][j] = (i == j) + s * K[i][j] + c * kk;
+        }
+}
+
+int rf_base64_decode(const char *text, unsigned char **out, size_t *len)
+{
+    size_t n = strlen(text), o = 0;
+    unsigned acc = 0;
+    int bits = 0, pad = 0;
+    unsigned char *buf = malloc(n / 4 * 3 + 3);
+    if (!buf) return -1;
+    for (size_t i = 0; i < n; i++) {
+        int c = (unsigned char)text[i], v;
+        if (c >= 'A' && c <= 'Z') v = c - 'A';
+        else if (c >= 'a' && c <= 'z') v = c - 'a' + 26;
+        else if (c >= '0' && c <= '9') v = c - '0' + 52;
+        else if (c == '+') v = 62;
+        else if (c == '/') v = 63;
+        else if (c == '=') { pad++; continue; }
+        else goto bad;
+        if (pad) goto bad;          /* data after padding */
+        acc = (acc << 6) | (unsigned)v;
+        bits += 6;
+        if (bits >= 8) {
+            bits -= 8;
+            buf[o++] = (unsigned char)(acc >> bits);
+            acc &= (1u << bits) - 1;
+        }
+    }
+    if (pad > 2 || (n % 4) != 0) goto bad;
+    *out = buf;
+    *len = o;
+    return 0;
+bad:
+    free(buf);
+    return -1;
+}
+
+/* ---- pyramids ------------------------------------------------------------------ */
+
+/* 2x2 box reduction, in the order of training/refine.py's reduce2. */
+static void reduce2(const double *src, int w, int h, double *dst)
+{
+    int w2 = w / 2, h2 = h / 2;
+    for (int j = 0; j < h2; j++)
+        for (int i = 0; i < w2; i++)
+            for (int c = 0; c < 3; c++) {
+                const double *a = src + ((size_t)(2 * j) * w + 2 * i) * 3 + c;
+                const double *b = a + (size_t)w * 3;
+                dst[((size_t)j * w2 + i) * 3 + c] = ((a[0] + a[3]) + (b[0] + b[3])) * 0.25;
+            }
+}
+
+/* Pixel (i, j) of an 8-bit image as BGR doubles (gray replicated, alpha dropped). */
+static inline void load_px(const rf_image *im, int i, int j, double *out)
+{
+    const uint8_t *p = im->data + (size_t)j * im->stride + (size_t)i * im->channels;
+    if (im->channels == 1) out[0] = out[1] = out[2] = p[0];
+    else { out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; }
+}
+
+rf_texture *rf_texture_new(const rf_image *img, char *err)
+{
+    char msg[160];
+    int w = img->width, h = img->height, unit = RF_TEXTURE_WIDTH >> (RF_LEVELS - 1);
+    if (w != 2 * h || h < 8) {
+        snprintf(msg, sizeof msg, "texture is %dx%d, expected width = 2 x height", w, h);
+        seterr(err, 160, msg);
+        return NULL;
+    }
+    if (w % unit || w < RF_TEXTURE_WIDTH) {
+        snprintf(msg, sizeof msg, "texture width %d must be a multiple of %d and at least %d", w, unit,
+                 RF_TEXTURE_WIDTH);
+        seterr(err, 160, msg);
+        return NULL;
+    }
+    if (img->channels != 1 && img->channels != 3 && img->channels != 4) {
+        seterr(err, 160, "texture must have 1, 3 or 4 channels");
+        return NULL;
+    }
+    rf_texture *t = calloc(1, sizeof *t);
+    double *full = malloc((size_t)w * h * 3 * sizeof(double));
+    if (!t || !full) goto oom;
+    for (int j = 0; j < h; j++)
+        for (int i = 0; i < w; i++) load_px(img, i, j, full + ((size_t)j * w + i) * 3);
+    while (w > RF_TEXTURE_WIDTH) {
+        double *half = malloc((size_t)(w / 2) * (h / 2) * 3 * sizeof(double));
+        if (!half) goto oom;
+        reduce2(full, w, h, half);
+        free(full);
+        full = half;
+        w /= 2;
+        h /= 2;
+    }
+    t->px[0] = full;
+    full = NULL;
+    t->w[0] = w;
+    t->h[0] = h;
+    for (int l = 1; l < RF_LEVELS; l++) {
+        t->w[l] = t->w[l - 1] / 2;
+        t->h[l] = t->h[l - 1] / 2;
+        t->px[l] = malloc((size_t)t->w[l] * t->h[l] * 3 * sizeof(double));
+        if (!t->px[l]) goto oom;
+        reduce2(t->px[l - 1], t->w[l - 1], t->h[l - 1], t->px[l]);
+    }
+    return t;
+oom:
+    free(full);
+    rf_texture_free(t);
+    seterr(err, 160, "texture: out of memory");
+    return NULL;
+}
+
+void rf_texture_free(rf_texture *t)
+{
+    if (!t) return;
+    for (int l = 0; l < RF_LEVELS; l++) free(t->px[l]);
+    free(t);
+}
+
+rf_work *rf_work_new(void) { return calloc(1, sizeof(rf_work)); }
+
+void rf_work_free(rf_work *w)
+{
+    if (!w) return;
+    for (int l = 0; l < RF_LEVELS; l++) free(w->lev[l]);
+    free(w->pix);
+    free(w);
+}
+
+static int grow(void **p, size_t *cap, size_t need)
+{
+    if (need <= *cap) return 0;
+    void *q = realloc(*p, need);
+    if (!q) return -1;
+    *p = q;
+    *cap = need;
+    return 0;
+}
+
+/* The square around the circle and its reductions (training/refine.py frame_pyramid). */
+static int frame_pyramid(rf_work *w, const rf_image *f, double cx, double cy, double r, int *x0, int *y0)
+{
+    double half = r * 1.25 + 2;
+    int step = 1 << (RF_LEVELS - 1);
+    int xa = (int)floor((cx - half) / step) * step, ya = (int)floor((cy - half) / step) * step;
+    int xb = (int)ceil((cx + half) / step) * step, yb = (int)ceil((cy + half) / step) * step;
+    if (xa < 0) xa = 0;
+    if (ya < 0) ya = 0;
+    if (xb > f->width) xb = f->width;
+    if (yb > f->height) yb = f->height;
+    if (xb <= xa || yb <= ya) return -2;
+    int cw = xb - xa, ch = yb - ya;
+    if (grow((void **)&w->lev[0], &w->cap[0], (size_t)cw * ch * 3 * sizeof(double)) < 0) return -1;
+    for (int j = 0; j < ch; j++)
+        for (int i = 0; i < cw; i++) load_px(f, xa + i, ya + j, w->lev[0] + ((size_t)j * cw + i) * 3);
+    w->w[0] = cw;
+    w->h[0] = ch;
+    for (int l = 1; l < RF_LEVELS; l++) {
+        w->w[l] = w->w[l - 1] / 2;
+        w->h[l] = w->h[l - 1] / 2;
+        if (grow((void **)&w->lev[l], &w->cap[l], ((size_t)w->w[l] * w->h[l] * 3 + 1) * sizeof(double)) < 0)
+            return -1;
+        reduce2(w->lev[l - 1], w->w[l - 1], w->h[l - 1], w->lev[l]);
+    }
+    *x0 = xa;
+    *y0 = ya;
+    return 0;
+}
+
+/* ---- geometry ------------------------------------------------------------------- */
+
+static inline double focal_of(double r, double fixed_f)
+{
+    return fixed_f > 0 ? fixed_f : r * sqrt(RF_REF_D_OVER_R * RF_REF_D_OVER_R - 1.0);
+}
+
+/* Unit normal of the sphere point seen through (u, v) (training/refine.py normals). */
+static inline void normal_at(double u, double v, double cx, double cy, double r, double f, double n[3],
+                             double *t_out)
+{
+    double x = (u - cx) / f, y = -(v - cy) / f;
+    double tan_a = r / f;
+    double dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
+    double inv = 1.0 / sqrt(x * x + y * y + 1.0);
+    double dx = x * inv, dy = y * inv, dz = -inv;
+    double od = dist * dz;
+    double disc = od * od - dist * dist + 1.0;
+    if (disc < 0) disc = 0;
+    double t = -od - sqrt(disc);
+    *t_out = t;
+    n[0] = t * dx;
+    n[1] = t * dy;
+    n[2] = dist + t * dz;
+}
+
+/* d n / d (cx, cy, r) at pixel (u, v), n given (training/refine.py
+ * normals_and_derivs: dt = -(n.dO + t n.dd) / (n.d), dn = dO + dt d + t dd). */
+static inline void normal_derivs(double u, double v, double cx, double cy, double r, double f, int fixed,
+                                 const double n[3], double t, double dn[3][3])
+{
+    double x = (u - cx) / f, y = -(v - cy) / f;
+    double tan_a = r / f, sec = sqrt(1.0 + tan_a * tan_a);
+    double L = sqrt(x * x + y * y + 1.0), inv = 1.0 / L;
+    double d[3] = {x * inv, y * inv, -inv};
+    double nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
+    double dqs[3][3] = {{-1.0 / f, 0, 0}, {0, 1.0 / f, 0}, {0, 0, 0}}, dDs[3] = {0, 0, 0};
+    if (fixed) dDs[2] = -(1.0 / f) / (tan_a * tan_a * sec);
+    else { dqs[2][0] = -x / r; dqs[2][1] = -y / r; }
+    for (int k = 0; k < 3; k++) {
+        const double *dq = dqs[k];
+        double ddq = d[0] * dq[0] + d[1] * dq[1] + d[2] * dq[2], dd[3];
+        for (int i = 0; i < 3; i++) dd[i] = (dq[i] - d[i] * ddq) * inv;
+        double ndd = n[0] * dd[0] + n[1] * dd[1] + n[2] * dd[2];
+        double dt = -(n[2] * dDs[k] + t * ndd) / nd;
+        for (int i = 0; i < 3; i++) dn[k][i] = dt * d[i] + t * dd[i];
+        dn[k][2] += dDs[k];
+    }
+}
+
+/* Bilinear value (3 channels) at body direction b, and d value / d b. */
+static inline void tex_sample(const double *tex, int w, int h, const double b[3], double val[3],
+                              double grad[3][3])
+{
+    double bx = b[0], by = b[1], bz = b[2];
+    double rho2 = bx * bx + bz * bz;
+    if (rho2 < 1e-12) rho2 = 1e-12;
+    double rho = sqrt(rho2);
+    double lon = atan2(bx, bz);
+    double lat = asin(by < -1 ? -1 : by > 1 ? 1 : by);
+    double ut = (lon + M_PI) * (w / (2 * M_PI)) - 0.5;
+    double vt = (M_PI / 2 - lat) * (h / M_PI) - 0.5;
+    double fi = floor(ut), fj = floor(vt);
+    double fx = ut - fi, fy = vt - fj;
+    long i0 = ((long)fi % w + w) % w, i1 = (i0 + 1) % w;
+    long j0 = (long)fj, j1 = j0 + 1;
+    if (j1 > h - 1) j1 = h - 1;
+    if (j1 < 0) j1 = 0;
+    if (j0 > h - 1) j0 = h - 1;
+    if (j0 < 0) j0 = 0;
+    const double *t00 = tex + ((size_t)j0 * w + i0) * 3, *t10 = tex + ((size_t)j0 * w + i1) * 3;
+    const double *t01 = tex + ((size_t)j1 * w + i0) * 3, *t11 = tex + ((size_t)j1 * w + i1) * 3;
+    double kw = w / (2 * M_PI), kh = -h / M_PI;
+    double dut[3] = {bz / rho2 * kw, 0, -bx / rho2 * kw};
+    double dvt1 = kh / rho;
+    for (int c = 0; c < 3; c++) {
+        double top = t00[c] + fx * (t10[c] - t00[c]);
+        double bot = t01[c] + fx * (t11[c] - t01[c]);
+        val[c] = top + fy * (bot - top);
+        double du = (t10[c] - t00[c]) + fy * ((t11[c] - t01[c]) - (t10[c] - t00[c]));
+        double dv = bot - top;
+        grad[c][0] = du * dut[0];
+        grad[c][1] = dv * dvt1;
+        grad[c][2] = du * dut[2];
+    }
+}
+
+/* A x = b for symmetric positive semi-definite A (k <= 6), with the tiny ridge
+ * of training/refine.py _solve_spd; Gaussian elimination with partial pivoting. */
+static void solve_spd(int k, double A[6][6], const double *b, double *x)
+{
+    double M[6][7], tr = 0;
+    for (int i = 0; i < k; i++) tr += A[i][i];
+    double ridge = 1e-9 * (tr / k > 1.0 ? tr / k : 1.0);
+    for (int i = 0; i < k; i++) {
+        for (int j = 0; j < k; j++) M[i][j] = A[i][j] + (i == j ? ridge : 0);
+        M[i][k] = b[i];
+    }
+    for (int c = 0; c < k; c++) {
+        int p = c;
+        for (int i = c + 1; i < k; i++)
+            if (fabs(M[i][c]) > fabs(M[p][c])) p = i;
+        if (p != c)
+            for (int j = 0; j <= k; j++) { double t = M[c][j]; M[c][j] = M[p][j]; M[p][j] = t; }
+        double d = M[c][c];
+        if (d == 0) d = 1e-300;
+        for (int i = c + 1; i < k; i++) {
+            double f = M[i][c] / d;
+            for (int j = c; j <= k; j++) M[i][j] -= f * M[c][j];
+        }
+    }
+    for (int i = k - 1; i >= 0; i--) {
+        double s = M[i][k];
+        for (int j = i + 1; j < k; j++) s -= M[i][j] * x[j];
+        x[i] = s / (M[i][i] != 0 ? M[i][i] : 1e-300);
+    }
+}
+
+/* Sampled pixels of a level (training/refine.py pixel_set): fills w->pix[].obs
+ * and the pixel centres; returns the count (or -1 out of memory). */
+static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int stride, double **uv)
+{
+    int W = w->w[lev], H = w->h[lev];
+    double rm = RF_RHO_MAX * r;
+    int j0 = (int)floor(cy - rm), j1 = (int)ceil(cy + rm) + 1;
+    int i0 = (int)floor(cx - rm), i1 = (int)ceil(cx + rm) + 1;
+    if (j0 < 0) j0 = 0;
+    if (i0 < 0) i0 = 0;
+    if (j1 > H) j1 = H;
+    if (i1 > W) i1 = W;
+    j0 = (j0 + stride - 1) / stride * stride;
+    i0 = (i0 + stride - 1) / stride * stride;
+    size_t most = (j1 > j0 && i1 > i0) ? (size_t)((j1 - j0) / stride + 1) * ((i1 - i0) / stride + 1) : 0;
+    if (grow((void **)&w->pix, &w->pcap, (most + 1) * (sizeof(rf_pix) + 2 * sizeof(double))) < 0) return -1;
+    /* the pixel centres live after the rf_pix records in the same block */
+    *uv = (double *)(w->pix + most + 1);
+    long n = 0;
+    for (int j = j0; j < j1; j += stride)
+        for (int i = i0; i < i1; i += stride) {
+            double u = i + 0.5, v = j + 0.5;
+            if ((u - cx) * (u - cx) + (v - cy) * (v - cy) > rm * rm) continue;
+            const double *p = w->lev[lev] + ((size_t)j * W + i) * 3;
+            w->pix[n].obs[0] = p[0];
+            w->pix[n].obs[1] = p[1];
+            w->pix[n].obs[2] = p[2];
+            (*uv)[2 * n] = u;
+            (*uv)[2 * n + 1] = v;
+            n++;
+        }
+    return n;
+}
+
+/* One evaluation at (R, cx, cy, r) over the sampled pixels: photometric fit,
+ * sse and sst; with H, g non-NULL also the normal equations of the step. */
+static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv, long np,
+                     const double R[3][3], double cx, double cy, double r, double fixed_f,
+                     double *sse_out, double *sst_out, double H[6][6], double g[6])
+{
+    const double *tex = t->px[lev];
+    int tw = t->w[lev], th = t->h[lev];
+    double f = focal_of(r, fixed_f);
+    double AtA[3][6][6], Atb[3][6], sum[3] = {0, 0, 0}, sum2[3] = {0, 0, 0};
+    memset(AtA, 0, sizeof AtA);
+    memset(Atb, 0, sizeof Atb);
+    for (long k = 0; k < np; k++) {
+        rf_pix *p = &w->pix[k];
+        double u = uv[2 * k], v = uv[2 * k + 1], b[3], grad[3][3], tt;
+        normal_at(u, v, cx, cy, r, f, p->n, &tt);
+        for (int i = 0; i < 3; i++) b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
+        tex_sample(tex, tw, th, b, p->val, grad);
+        p->flat = 1;
+        for (int c = 0; c < 3 && p->flat; c++)
+            p->flat = grad[c][0] == 0 && grad[c][1] == 0 && grad[c][2] == 0;
+        if (H && !p->flat) {
+            double dn[3][3];
+            normal_derivs(u, v, cx, cy, r, f, fixed_f > 0, p->n, tt, dn);
+            const double *n = p->n;
+            for (int c = 0; c < 3; c++) {
+                double gw[3];
+                for (int i = 0; i < 3; i++)
+                    gw[i] = R[i][0] * grad[c][0] + R[i][1] * grad[c][1] + R[i][2] * grad[c][2];
+                p->jw[c][0] = gw[1] * n[2] - gw[2] * n[1];
+                p->jw[c][1] = gw[2] * n[0] - gw[0] * n[2];
+                p->jw[c][2] = gw[0] * n[1] - gw[1] * n[0];
+                for (int q = 0; q < 3; q++)
+                    p->jt[c][q] = gw[0] * dn[q][0] + gw[1] * dn[q][1] + gw[2] * dn[q][2];
+            }
+        }
+        for (int c = 0; c < 3; c++) {
+            double tv = p->val[c];
+            double a[5] = {tv, tv * p->n[0], tv * p->n[1], tv * p->n[2], 1.0};
+            for (int i = 0; i < 5; i++) {
+                for (int j = i; j < 5; j++) AtA[c][i][j] += a[i] * a[j];
+                Atb[c][i] += a[i] * p->obs[c];
+            }
+            sum[c] += p->obs[c];
+        }
+    }
+    double coef[3][6], sse = 0, sst = 0;
+    for (int c = 0; c < 3; c++) {
+        for (int i = 0; i < 5; i++)
+            for (int j = 0; j < i; j++) AtA[c][i][j] = AtA[c][j][i];
+        solve_spd(5, AtA[c], Atb[c], coef[c]);
+    }
+    double mean[3] = {sum[0] / np, sum[1] / np, sum[2] / np};
+    if (H) {
+        memset(H, 0, sizeof(double) * 36);
+        memset(g, 0, sizeof(double) * 6);
+    }
+    for (long k = 0; k < np; k++) {
+        rf_pix *p = &w->pix[k];
+        for (int c = 0; c < 3; c++) {
+            const double *a = coef[c];
+            double shade = a[0] + a[1] * p->n[0] + a[2] * p->n[1] + a[3] * p->n[2];
+            double model = p->val[c] * shade + a[4];
+            double e = p->obs[c] - model, d = p->obs[c] - mean[c];
+            sse += e * e;
+            sum2[c] += d * d;
+            if (H && !p->flat) {
+                double J[6];
+                for (int i = 0; i < 3; i++) { J[i] = p->jw[c][i] * shade; J[3 + i] = p->jt[c][i] * shade; }
+                for (int i = 0; i < 6; i++) {
+                    for (int j = i; j < 6; j++) H[i][j] += J[i] * J[j];
+                    g[i] += J[i] * e;
+                }
+            }
+        }
+    }
+    if (H)
+        for (int i = 0; i < 6; i++)
+            for (int j = 0; j < i; j++) H[i][j] = H[j][i];
+    sst = sum2[0] + sum2[1] + sum2[2];
+    *sse_out = sse;
+    *sst_out = sst;
+}
+
+int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy, double r,
+              const double R0[3][3], double focal_px, int steps, rf_out *out, char *err, size_t errlen)
+{
+    double R[3][3];
+    int x0, y0, total = 0;
+    double *uv;
+    memcpy(R, R0, sizeof R);
+    if (!t || !w || !frame || !frame->data || !(r > 2) || !isfinite(cx) || !isfinite(cy) || !isfinite(r)) {
+        seterr(err, errlen, "refine: no texture, frame or circle");
+        return -1;
+    }
+    int rc = frame_pyramid(w, frame, cx, cy, r, &x0, &y0);
+    if (rc == -1) { seterr(err, errlen, "refine: out of memory"); return -1; }
+    if (rc == -2) { seterr(err, errlen, "refine: circle outside the frame"); return -1; }
+    cx -= x0;
+    cy -= y0;
+    for (int lev = RF_LEVELS - 1; lev >= 0 && steps; lev--) {
+        double s = 1.0 / (1 << lev);
+        double ff = focal_px > 0 ? focal_px * s : 0;
+        int li = RF_LEVELS - 1 - lev;
+        long np = pixel_set(w, lev, cx * s, cy * s, r * s, rf_strides[li], &uv);
+        if (np < 0) { seterr(err, errlen, "refine: out of memory"); return -1; }
+        if (np < 50) continue;
+        for (int it = 0; it < rf_iters[li]; it++) {
+            double H[6][6], g[6], d[6], sse, sst, M[3][3], Rn[3][3];
+            evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &sse, &sst, H, g);
+            for (int i = 0; i < 6; i++) H[i][i] *= 1.0 + RF_DAMPING;
+            solve_spd(6, H, g, d);
+            double ang = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            double lim = RF_MAX_STEP_DEG * M_PI / 180.0;
+            if (ang > lim)
+                for (int i = 0; i < 6; i++) d[i] *= lim / ang;
+            rotvec_to_matrix(d, M);
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++)
+                    Rn[i][j] = M[i][0] * R[0][j] + M[i][1] * R[1][j] + M[i][2] * R[2][j];
+            memcpy(R, Rn, sizeof R);
+            cx += d[3] / s;
+            cy += d[4] / s;
+            r += d[5] / s;
+            total++;
+        }
+    }
+    {
+        int lev = RF_RESIDUAL_LEVEL;
+        double s = 1.0 / (1 << lev), sse, sst;
+        double ff = focal_px > 0 ? focal_px * s : 0;
+        long np = pixel_set(w, lev, cx * s, cy * s, r * s, 1, &uv);
+        if (np < 0) { seterr(err, errlen, "refine: out of memory"); return -1; }
+        if (np < 50) { seterr(err, errlen, "refine: circle too small or outside the frame"); return -1; }
+        evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &sse, &sst, NULL, NULL);
+        out->residual = sst > 0 ? sse / sst : 1.0;
+    }
+    memcpy(out->R, R, sizeof R);
+    rf_matrix_to_euler(R, out->euler);
+    out->cx = cx + x0;
+    out->cy = cy + y0;
+    out->r = r;
+    out->iterations = total;
+    return 0;
+}
+
+/* ---- confidence ----------------------------------------------------------------- */
+
+void rf_conf_defaults(rf_conf *c)
+{
+    c->residual_max = 0.25;
+    c->residual_max_unrefined = 0.25;
+    c->range_margin_deg = 2.0;
+    for (int i = 0; i < 3; i++) { c->ranges[i][0] = -30; c->ranges[i][1] = 30; }
+}
+
+static int conf_number(const json_value *o, const char *key, double lo, double hi, double *out,
+                       char *err, size_t errlen)
+{
+    const json_value *v = json_get(o, key);
+    if (!v) return 0;
+    if (v->type != JSON_NUMBER || !(v->number >= lo && v->number <= hi)) {
+        if (err) snprintf(err, errlen, "metadata spherepose.confidence: \"%s\" must be a number in [%g, %g]",
+                          key, lo, hi);
+        return -1;
+    }
+    *out = v->number;
+    return 0;
+}
+
+int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err, size_t errlen)
+{
+    json_value root;
+    char jerr[128];
+    int has_unrefined = 0;
+    if (confidence_json) {
+        if (json_parse(confidence_json, &root, jerr, sizeof jerr) < 0) {
+            if (err) snprintf(err, errlen, "metadata spherepose.confidence: %s", jerr);
+            return -1;
+        }
+        int bad = root.type != JSON_OBJECT;
+        if (bad && err) snprintf(err, errlen, "metadata spherepose.confidence: not a JSON object");
+        if (!bad) {
+            /* without its own threshold the unrefined residual uses the refined one */
+            has_unrefined = json_get(&root, "residual_max_unrefined") != NULL;
+            bad = conf_number(&root, "residual_max", 0, 1, &c->residual_max, err, errlen) < 0 ||
+                  conf_number(&root, "residual_max_unrefined", 0, 1, &c->residual_max_unrefined, err, errlen) < 0 ||
+                  conf_number(&root, "range_margin_deg", 0, 180, &c->range_margin_deg, err, errlen) < 0;
+            if (!has_unrefined) c->residual_max_unrefined = c->residual_max;
+        }
+        json_free(&root);
+        if (bad) return -1;
+    }
+    if (ranges_json) {
+        static const char *names[3] = {"x", "y", "z"};
+        if (json_parse(ranges_json, &root, jerr, sizeof jerr) < 0) {
+            if (err) snprintf(err, errlen, "metadata spherepose.ranges: %s", jerr);
+            return -1;
+        }
+        for (int i = 0; i < 3; i++) {
+            const json_value *v = root.type == JSON_OBJECT ? json_get(&root, names[i]) : NULL;
+            if (!v || v->type != JSON_ARRAY || v->count != 2 || v->items[0].type != JSON_NUMBER ||
+                v->items[1].type != JSON_NUMBER || !(v->items[0].number <= v->items[1].number)) {
+                if (err) snprintf(err, errlen, "metadata spherepose.ranges: \"%s\" must be [lo, hi] degrees", names[i]);
+                json_free(&root);
+                return -1;
+            }
+            c->ranges[i][0] = v->items[0].number;
+            c->ranges[i][1] = v->items[1].number;
+        }
+        json_free(&root);
+    }
+    return 0;
+}
+
+int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note, size_t notelen)
+{
+    double max = refined ? c->residual_max : c->residual_max_unrefined, m = c->range_margin_deg;
+    if (!(residual <= max)) {
+        snprintf(note, notelen, "poor alignment (residual %.3f > %.3f): another texture, a pose outside the "
+                 "model's ranges, or a wrong sphere", residual, max);
+        return 0;
+    }
+    for (int i = 0; i < 3; i++) {
+        if (!(euler[i] >= c->ranges[i][0] - m && euler[i] <= c->ranges[i][1] + m)) {
+            snprintf(note, notelen, "outside the model's ranges (%c = %.1f not in [%g, %g])", "xyz"[i], euler[i],
+                     c->ranges[i][0], c->ranges[i][1]);
+            return 0;
+        }
+    }
+    if (notelen) note[0] = 0;
+    return 1;
+}

@@ -1,0 +1,87 @@
+/* refine.h -- render-and-compare refinement of a pose, and its alignment
+ * residual (plain C, no OpenCV). The algorithm and its parameters are those
+ * of training/refine.py, the reference; docs/refine.md describes both. */
+#ifndef PI_REFINE_H
+#define PI_REFINE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define RF_META_TEXTURE "spherepose.texture_png"
+#define RF_META_CONFIDENCE "spherepose.confidence"
+
+/* The parameters of training/refine.py (tests/host/unit/test_refine.c reads
+ * them back from the Python file). */
+#define RF_LEVELS 3
+#define RF_ITERS_INIT {3, 2, 1}       /* Gauss-Newton steps per level, coarse to fine */
+#define RF_STRIDES_INIT {1, 1, 2}     /* pixel sampling stride per level, coarse to fine */
+#define RF_RESIDUAL_LEVEL 1
+#define RF_RHO_MAX 0.92
+#define RF_TEXTURE_WIDTH 1024
+#define RF_DAMPING 1e-3
+#define RF_MAX_STEP_DEG 3.0
+#define RF_REF_D_OVER_R 12.5
+
+/* The texture pyramid (finest RF_TEXTURE_WIDTH wide). */
+typedef struct rf_texture rf_texture;
+
+/* Working memory reused between frames. */
+typedef struct rf_work rf_work;
+
+typedef struct rf_image {
+    const uint8_t *data;   /* 8-bit pixels, channels 1 (gray), 3 (BGR) or 4 (BGRA) */
+    int width, height, channels;
+    size_t stride;         /* bytes per row */
+} rf_image;
+
+typedef struct rf_out {
+    double R[3][3];        /* refined body-to-world rotation */
+    double euler[3];       /* the same as (x, y, z) degrees */
+    double cx, cy, r;      /* refined circle, continuous pixel coordinates */
+    double residual;       /* unexplained fraction of the frame's variance, [0, 1] */
+    int iterations;        /* Gauss-Newton steps taken */
+} rf_out;
+
+/* Texture from decoded pixels (an equirectangular image, width = 2 x height,
+ * width a multiple of RF_TEXTURE_WIDTH / 4 and at least RF_TEXTURE_WIDTH).
+ * NULL with err filled when it does not fit. */
+rf_texture *rf_texture_new(const rf_image *img, char *err);
+void rf_texture_free(rf_texture *t);
+
+rf_work *rf_work_new(void);
+void rf_work_free(rf_work *w);
+
+/* Refine R0 (body to world, row-major) and the circle (cx, cy, r)
+ * (continuous pixel coordinates of the undistorted frame) against the
+ * texture. focal_px: the camera's focal length in pixels, 0 to derive it from
+ * r and the reference camera. steps = 0: no refinement, only the residual at
+ * R0 and the circle. Returns 0, or -1 with err (too small a circle, out of
+ * memory). */
+int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy, double r,
+              const double R0[3][3], double focal_px, int steps, rf_out *out, char *err, size_t errlen);
+
+/* Confidence: thresholds (metadata spherepose.confidence) and the model's
+ * ranges (spherepose.ranges). */
+typedef struct rf_conf {
+    double residual_max;            /* refined residual above this: not confident */
+    double residual_max_unrefined;  /* the same for the residual at the network's pose */
+    double range_margin_deg;        /* a pose this far beyond the ranges: not confident */
+    double ranges[3][2];            /* x, y, z: [lo, hi] degrees */
+} rf_conf;
+
+void rf_conf_defaults(rf_conf *c);
+
+/* Parse either JSON text (NULL: keep the defaults). -1 with err naming the key. */
+int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err, size_t errlen);
+
+/* 1 when confident, else 0 with the reason in note (training/refine.py judge). */
+int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note, size_t notelen);
+
+/* Conventions' conversions (docs/conventions.md). */
+void rf_euler_to_matrix(const double euler_deg[3], double R[3][3]);
+void rf_matrix_to_euler(const double R[3][3], double euler_deg[3]);
+
+/* Base64 (RFC 4648, no line breaks) to bytes: *out malloc'ed. -1 on bad text. */
+int rf_base64_decode(const char *text, unsigned char **out, size_t *len);
+
+#endif
