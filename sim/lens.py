@@ -34,6 +34,18 @@ def opencv_matrix(focal_px, principal):
     return np.array([[focal_px, 0.0, u0 - 0.5], [0.0, focal_px, v0 - 0.5], [0.0, 0.0, 1.0]])
 
 
+_GRIDS = {}
+
+
+def _fine_grid(width, height):
+    """Every pixel's position in units of the coarse grid (cached per size)."""
+    g = _GRIDS.get((width, height))
+    if g is None:
+        g = _GRIDS[(width, height)] = np.meshgrid(np.arange(width, dtype=np.float32) / GRID_STEP,
+                                                  np.arange(height, dtype=np.float32) / GRID_STEP)
+    return g
+
+
 def undistort_map(width, height, focal_px, principal, distortion):
     """float32 maps (x, y) [H, W]: for each frame pixel (OpenCV integer coordinates), where it lies in
     the pinhole image. Evaluated every GRID_STEP pixels and interpolated bilinearly."""
@@ -47,8 +59,7 @@ def undistort_map(width, height, focal_px, principal, distortion):
                                   (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-6))
     coarse = und.reshape(ny, nx, 2).astype(np.float32)
     # Bilinear interpolation of the coarse grid at every pixel: remap the coarse map itself.
-    fx, fy = np.meshgrid(np.arange(width, dtype=np.float32) / GRID_STEP,
-                         np.arange(height, dtype=np.float32) / GRID_STEP)
+    fx, fy = _fine_grid(width, height)
     full = cv2.remap(coarse, fx, fy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return np.ascontiguousarray(full[..., 0]), np.ascontiguousarray(full[..., 1])
 

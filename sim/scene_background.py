@@ -118,6 +118,6 @@ def make_background(b, spec, photos, width, height):
         img = np.clip(np.rint(base), 0, 255).astype(np.uint8)
         _shapes(rng, img, spec)
         img = img.astype(np.float32)
-    if b["blur_px"] > 0.05:
+    if b["blur_px"] > 0.05 and kind in ("clutter", "photo"):  # flat and gradient are smooth already
         img = cv2.GaussianBlur(img, (0, 0), b["blur_px"])
     return img

@@ -67,7 +67,8 @@ def gaussian_noise(shape, seed):
 _RR = {}  # (w, h, u0, v0) -> rr^2 map
 
 
-def _rr2(w, h, principal):
+def _falloff(w, h, principal, v):
+    """float32 [H, W, 3] gain 1 - v rr^2 of the vignetting."""
     key = (w, h, float(principal[0]), float(principal[1]))
     rr = _RR.get(key)
     if rr is None:
@@ -76,18 +77,18 @@ def _rr2(w, h, principal):
         rr = ((xx + 0.5 - u0) ** 2 + (yy + 0.5 - v0) ** 2) / ((w / 2.0) ** 2 + (h / 2.0) ** 2)
         if len(_RR) > 8:
             _RR.clear()
-        rr = _RR[key] = rr.astype(np.float32)[..., None]
-    return rr
+        rr = _RR[key] = cv2.cvtColor(rr.astype(np.float32), cv2.COLOR_GRAY2RGB)
+    return 1.0 - v * rr
 
 
 def finish(rgba, background, im, principal):
     """uint8 RGB frame from the rendered RGBA (premultiplied, alpha 0 on the background), the
-    background (float32 0..255) and image draw `im`."""
-    fg = rgba[..., :3].astype(np.float32)
-    alpha = rgba[..., 3:4].astype(np.float32) * (1.0 / 255.0)
+    background (float32 0..255) and image draw `im`. Works in float32 on the 0..255 scale."""
     # Premultiplied: the render's background is black with alpha 0, so its colours (and those the lens
     # remap blends at the outline) already carry their alpha.
-    x = (fg + background * (1.0 - alpha)) * (1.0 / 255.0)
+    inv = cv2.cvtColor(255 - rgba[..., 3], cv2.COLOR_GRAY2RGB)
+    x = cv2.multiply(background, inv, scale=1.0 / 255.0, dtype=cv2.CV_32F)
+    x = cv2.add(x, cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), dtype=cv2.CV_32F)
     if im["defocus_px"] > 0.3:
         x = cv2.filter2D(x, -1, disc_kernel(im["defocus_px"]), borderType=cv2.BORDER_REFLECT)
     if im["motion_px"] > 0.5:
@@ -95,17 +96,20 @@ def finish(rgba, background, im, principal):
     h, w = x.shape[:2]
     gain = im["exposure"]
     if im["vignetting"] > 0:
-        x *= gain * (1.0 - im["vignetting"] * _rr2(w, h, principal))
+        x = cv2.multiply(x, _falloff(w, h, principal, im["vignetting"]), scale=gain)
     elif gain != 1.0:
         x *= gain
     if im["read_noise"] > 0 or im["shot_noise"] > 0:
-        var = (im["shot_noise"] / 255.0) ** 2 * np.clip(x, 0.0, 1.0)
-        var += (im["read_noise"] / 255.0) ** 2
+        var = np.clip(x, 0.0, 255.0)
+        var *= im["shot_noise"] ** 2 / 255.0
+        var += im["read_noise"] ** 2
         x += cv2.sqrt(var) * gaussian_noise(x.shape, im["noise_seed"])
-    np.clip(x, 0.0, 1.0, out=x)
+    np.clip(x, 0.0, 255.0, out=x)
     if im["gamma"] != 1.0:
+        x *= 1.0 / 255.0
         x **= 1.0 / im["gamma"]
-    out = np.rint(x * 255.0).astype(np.uint8)
+        x *= 255.0
+    out = cv2.convertScaleAbs(x)  # x >= 0 here: rounds to nearest and saturates to 8 bits in one pass
     if im["jpeg_quality"] is not None:
         ok, buf = cv2.imencode(".jpg", cv2.cvtColor(out, cv2.COLOR_RGB2BGR),
                                [cv2.IMWRITE_JPEG_QUALITY, int(im["jpeg_quality"])])
