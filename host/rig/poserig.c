@@ -154,7 +154,35 @@ static void stop_stage(stage *s) {
     else fprintf(stderr, "poserig: stage held and reset (state %s)\n", s->last.state);
 }
 
-int main(int argc, char **argv) {
+/* ---- the run's stages: parse, open, run, report ------------------------ */
+
+/* The command line. */
+typedef struct {
+    const char *port, *camera, *model, *plan_file, *out;
+    double range[3][2], feed;
+    unsigned long long seed;
+    int nrandom, home, settle_ms, discard, save_frames, retries, cam_timeout, allow_defaults;
+    stage_opts so;
+    pi_options piopt;
+} rig_args;
+
+/* What a run holds: the plan, its rows so far, and the open rig. */
+typedef struct {
+    rig_pose *poses;
+    int npose;
+    rig_row *rows;
+    int nrows, failed, cam_fail_run;
+    const char *stopped;       /* why the run ended early, NULL if it did not */
+    char plan_desc[256], started[32];
+    double t_start;
+    pi_ctx *ctx;
+    pi_camera *cam;
+    stage st;
+} rig_run;
+
+/* Parse the command line into a. Returns -1 to go on, else the exit status
+ * (0 after --help, EXIT_USAGE for a bad argument). */
+static int parse_args(int argc, char **argv, rig_args *a) {
     static const struct option longopts[] = {
         {"port", required_argument, 0, 'p'},      {"camera", required_argument, 0, 'c'},
         {"model", required_argument, 0, 'm'},     {"plan", required_argument, 0, 'P'},
@@ -171,67 +199,60 @@ int main(int argc, char **argv) {
         {"verbose", no_argument, 0, 'v'},         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
-    const char *port = "auto", *camera = NULL, *model = NULL, *plan_file = NULL, *out = "poserig-out";
-    double range[3][2] = {{-30, 30}, {-30, 30}, {-30, 30}}, feed = 0, t_start;
-    unsigned long long seed = 1;
-    int nrandom = 0, home = 0, settle_ms = 300, discard = 0, save_frames = 0, retries = 1;
-    int cam_timeout = 5000, c, i, npose = 0, nrows = 0, failed = 0, rc = EXIT_USAGE;
-    int cam_fail_run = 0, longidx = 0, allow_defaults = 0;
-    char err[RIG_ERR_LEN];
-    char pierr[PI_ERR_LEN], path[4096], plan_desc[256], startbuf[32];
-    const char *stopped = NULL;
-    rig_pose *poses = NULL;
-    rig_row *rows = NULL;
-    pi_options piopt;
-    pi_ctx *ctx = NULL;
-    pi_camera *cam = NULL;
-    stage_opts so;
-    stage st;
-    struct sigaction sa;
+    int c, longidx = 0, i;
 
-    memset(&st, 0, sizeof(st));
-    st.fd = -1;
-    stage_opts_default(&so);
-    pi_options_init(&piopt);
+    memset(a, 0, sizeof(*a));
+    a->port = "auto";
+    a->out = "poserig-out";
+    for (i = 0; i < 3; i++) {
+        a->range[i][0] = -30;
+        a->range[i][1] = 30;
+    }
+    a->seed = 1;
+    a->settle_ms = 300;
+    a->retries = 1;
+    a->cam_timeout = 5000;
+    stage_opts_default(&a->so);
+    pi_options_init(&a->piopt);
     while ((c = getopt_long(argc, argv, "vh", longopts, &longidx)) != -1) {
         double d;
         char *end;
         switch (c) {
-        case 'p': port = optarg; break;
-        case 'c': camera = optarg; break;
-        case 'm': model = optarg; break;
-        case 'P': plan_file = optarg; break;
-        case 'n': if (parse_int(optarg, 1, RIG_PLAN_MAX, &nrandom) != 0) goto badarg; break;
+        case 'p': a->port = optarg; break;
+        case 'c': a->camera = optarg; break;
+        case 'm': a->model = optarg; break;
+        case 'P': a->plan_file = optarg; break;
+        case 'n': if (parse_int(optarg, 1, RIG_PLAN_MAX, &a->nrandom) != 0) goto badarg; break;
         case 'X': case 'Y': case 'Z':
-            if (rig_parse_range(optarg, &range[c - 'X'][0], &range[c - 'X'][1]) != 0) goto badarg;
+            if (rig_parse_range(optarg, &a->range[c - 'X'][0], &a->range[c - 'X'][1]) != 0) goto badarg;
             break;
         case 'S':
             errno = 0;
-            seed = strtoull(optarg, &end, 10);
+            a->seed = strtoull(optarg, &end, 10);
             if (end == optarg || *end || errno) goto badarg;
             break;
-        case 'H': home = 1; break;
-        case 's': if (parse_int(optarg, 0, 600000, &settle_ms) != 0) goto badarg; break;
-        case 'd': if (parse_int(optarg, 0, 100, &discard) != 0) goto badarg; break;
+        case 'H': a->home = 1; break;
+        case 's': if (parse_int(optarg, 0, 600000, &a->settle_ms) != 0) goto badarg; break;
+        case 'd': if (parse_int(optarg, 0, 100, &a->discard) != 0) goto badarg; break;
         case 'f':
             d = strtod(optarg, &end);
             if (end == optarg || *end || !(d > 0)) goto badarg;
-            feed = d;
+            a->feed = d;
             break;
-        case 'o': out = optarg; break;
-        case 'F': save_frames = 1; break;
-        case 'r': if (parse_int(optarg, 0, 10, &retries) != 0) goto badarg; break;
-        case 't': if (parse_int(optarg, 1, 64, &piopt.intra_threads) != 0) goto badarg; break;
-        case 'C': if (parse_int(optarg, 1, 3600000, &cam_timeout) != 0) goto badarg; break;
-        case 'b': if (parse_int(optarg, 1, 3600000, &so.banner_timeout_ms) != 0) goto badarg; break;
-        case 'T': if (parse_int(optarg, 1, 3600000, &so.reply_timeout_ms) != 0) goto badarg; break;
-        case 'l': if (parse_int(optarg, 1, 60000, &so.poll_ms) != 0) goto badarg; break;
+        case 'o': a->out = optarg; break;
+        case 'F': a->save_frames = 1; break;
+        case 'r': if (parse_int(optarg, 0, 10, &a->retries) != 0) goto badarg; break;
+        case 't': if (parse_int(optarg, 1, 64, &a->piopt.intra_threads) != 0) goto badarg; break;
+        case 'C': if (parse_int(optarg, 1, 3600000, &a->cam_timeout) != 0) goto badarg; break;
+        case 'b': if (parse_int(optarg, 1, 3600000, &a->so.banner_timeout_ms) != 0) goto badarg; break;
+        case 'T': if (parse_int(optarg, 1, 3600000, &a->so.reply_timeout_ms) != 0) goto badarg; break;
+        case 'l': if (parse_int(optarg, 1, 60000, &a->so.poll_ms) != 0) goto badarg; break;
         case 'M':
-            if (parse_int(optarg, 1, 36000000, &so.move_timeout_ms) != 0) goto badarg;
-            so.home_timeout_ms = so.move_timeout_ms;
+            if (parse_int(optarg, 1, 36000000, &a->so.move_timeout_ms) != 0) goto badarg;
+            a->so.home_timeout_ms = a->so.move_timeout_ms;
             break;
-        case 'D': allow_defaults = 1; break;
-        case 'v': so.log = stderr; break;
+        case 'D': a->allow_defaults = 1; break;
+        case 'v': a->so.log = stderr; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return EXIT_USAGE;
         }
@@ -240,30 +261,43 @@ int main(int argc, char **argv) {
         fprintf(stderr, "poserig: unexpected argument '%s'\n", argv[optind]);
         return EXIT_USAGE;
     }
-    if (!camera || !model || (!plan_file == !nrandom)) {
+    if (!a->camera || !a->model || (!a->plan_file == !a->nrandom)) {
         fprintf(stderr, "poserig: needs --camera, --model, and one of --plan or --random (see --help)\n");
         return EXIT_USAGE;
     }
+    return -1;
+badarg:
+    fprintf(stderr, "poserig: bad value '%s' for --%s (see --help)\n", optarg, longopts[longidx].name);
+    return EXIT_USAGE;
+}
+
+/* Load the plan, make the output folders, then open the model, the camera
+ * and the stage, in that order, and check that the stage may be measured
+ * with. Returns 0, or -1 with err. */
+static int open_rig(const rig_args *a, rig_run *r, char *err) {
+    char pierr[PI_ERR_LEN], path[4096];
+    struct sigaction sa;
 
     /* Everything that can be checked without the rig, first. */
-    if (plan_file) {
-        if (rig_plan_load(plan_file, &poses, &npose, err) != 0) goto setup_fail;
-        snprintf(plan_desc, sizeof(plan_desc), "file `%s`, %d poses", plan_file, npose);
+    if (a->plan_file) {
+        if (rig_plan_load(a->plan_file, &r->poses, &r->npose, err) != 0) return -1;
+        snprintf(r->plan_desc, sizeof(r->plan_desc), "file `%s`, %d poses", a->plan_file, r->npose);
     } else {
-        if (rig_plan_random(nrandom, (const double (*)[2])range, seed, &poses, err) != 0) goto setup_fail;
-        npose = nrandom;
-        snprintf(plan_desc, sizeof(plan_desc),
-                 "%d random poses, seed %llu, x in [%g, %g], y in [%g, %g], z in [%g, %g]", nrandom,
-                 seed, range[0][0], range[0][1], range[1][0], range[1][1], range[2][0], range[2][1]);
+        if (rig_plan_random(a->nrandom, (const double (*)[2])a->range, a->seed, &r->poses, err) != 0) return -1;
+        r->npose = a->nrandom;
+        snprintf(r->plan_desc, sizeof(r->plan_desc),
+                 "%d random poses, seed %llu, x in [%g, %g], y in [%g, %g], z in [%g, %g]", a->nrandom,
+                 a->seed, a->range[0][0], a->range[0][1], a->range[1][0], a->range[1][1], a->range[2][0],
+                 a->range[2][1]);
     }
-    if (!(rows = calloc((size_t)npose, sizeof(*rows)))) {
-        snprintf(err, sizeof(err), "calloc: out of memory for %d poses", npose);
-        goto setup_fail;
+    if (!(r->rows = calloc((size_t)r->npose, sizeof(*r->rows)))) {
+        snprintf(err, RIG_ERR_LEN, "calloc: out of memory for %d poses", r->npose);
+        return -1;
     }
-    if (make_dirs(out, err) != 0) goto setup_fail;
-    if (save_frames) {
-        snprintf(path, sizeof(path), "%s/frames", out);
-        if (make_dirs(path, err) != 0) goto setup_fail;
+    if (make_dirs(a->out, err) != 0) return -1;
+    if (a->save_frames) {
+        snprintf(path, sizeof(path), "%s/frames", a->out);
+        if (make_dirs(path, err) != 0) return -1;
     }
 
     /* SIGINT/SIGTERM end the run between steps: no SA_RESTART, so a wait
@@ -274,218 +308,254 @@ int main(int argc, char **argv) {
     sigaction(SIGINT, &sa, NULL);
     sigaction(SIGTERM, &sa, NULL);
     signal(SIGPIPE, SIG_IGN);   /* a camera socket that closes is an error, not a death */
-    so.cancel = &stop_signal;
 
-    fprintf(stderr, "poserig: loading model %s\n", model);
-    if (!(ctx = pi_open(model, &piopt, pierr))) {
-        snprintf(err, sizeof(err), "%s", pierr);
-        goto setup_fail;
+    fprintf(stderr, "poserig: loading model %s\n", a->model);
+    if (!(r->ctx = pi_open(a->model, &a->piopt, pierr))) {
+        snprintf(err, RIG_ERR_LEN, "%s", pierr);
+        return -1;
     }
-    fprintf(stderr, "poserig: opening camera %s\n", camera);
-    if (!(cam = pi_camera_open(camera, cam_timeout, pierr))) {
-        snprintf(err, sizeof(err), "%s", pierr);
-        goto setup_fail;
+    fprintf(stderr, "poserig: opening camera %s\n", a->camera);
+    if (!(r->cam = pi_camera_open(a->camera, a->cam_timeout, pierr))) {
+        snprintf(err, RIG_ERR_LEN, "%s", pierr);
+        return -1;
     }
-    fprintf(stderr, "poserig: opening stage %s\n", port);
-    if (stage_open(&st, port, &so, err) != 0) goto setup_fail;
-    fprintf(stderr, "poserig: stage %s on %s (%s), state %s\n", st.banner[0] ? st.banner : "(no banner)",
-            st.path, st.via_termios ? "termios" : "libserialport", st.last.state);
+    fprintf(stderr, "poserig: opening stage %s\n", a->port);
+    {
+        stage_opts so = a->so;
+        so.cancel = &stop_signal;
+        if (stage_open(&r->st, a->port, &so, err) != 0) return -1;
+    }
+    fprintf(stderr, "poserig: stage %s on %s (%s), state %s\n", r->st.banner[0] ? r->st.banner : "(no banner)",
+            r->st.path, r->st.via_termios ? "termios" : "libserialport", r->st.last.state);
     /* Defaults mean other steps per degree and limits than the rig's: every
      * pose would be measured against a wrong angle, quietly. */
-    if (st.defaults_restored && !allow_defaults) {
-        fprintf(stderr, "poserig: the stage says '%s'\n", st.restored_msg);
+    if (r->st.defaults_restored && !a->allow_defaults) {
+        fprintf(stderr, "poserig: the stage says '%s'\n", r->st.restored_msg);
         rig_seterr(err, "stage %.60s runs on the firmware's default settings, not the rig's: set them "
-                   "again (stagectl settings, stagectl set) or give --allow-default-settings", st.path);
-        goto setup_fail;
+                   "again (stagectl settings, stagectl set) or give --allow-default-settings", r->st.path);
+        return -1;
     }
-    if (st.defaults_restored)
+    if (r->st.defaults_restored)
         fprintf(stderr, "poserig: warning: the stage runs on default settings ('%s'); going on as told "
-                        "(--allow-default-settings)\n", st.restored_msg);
-    if (home) {
+                        "(--allow-default-settings)\n", r->st.restored_msg);
+    if (a->home) {
         fprintf(stderr, "poserig: homing\n");
-        if (stage_home(&st, err) != 0) goto setup_fail;
-    } else if (strcmp(st.last.state, "Alarm") == 0) {
-        snprintf(err, sizeof(err), "stage %.100s is in Alarm: give --home, or unlock it "
-                 "(stagectl unlock) if its position is known", st.path);
-        goto setup_fail;
+        if (stage_home(&r->st, err) != 0) return -1;
+    } else if (strcmp(r->st.last.state, "Alarm") == 0) {
+        snprintf(err, RIG_ERR_LEN, "stage %.100s is in Alarm: give --home, or unlock it "
+                 "(stagectl unlock) if its position is known", r->st.path);
+        return -1;
     }
+    return 0;
+}
 
-    {
-        time_t now = time(NULL);
-        strftime(startbuf, sizeof(startbuf), "%Y-%m-%dT%H:%M:%SZ", gmtime(&now));
-    }
-    t_start = now_ms();
-    rc = 0;
-    for (i = 0; i < npose && !stop_signal; i++) {
-        rig_row *r = &rows[nrows];
-        pi_frame frame;
-        pi_result res;
-        double t0 = now_ms(), t1;
-        int attempt, k, moved = 0;
+enum { POSE_NEXT, POSE_STOP };
 
-        memset(r, 0, sizeof(*r));
-        r->index = i;
-        memcpy(r->cmd, poses[i].xyz, sizeof(r->cmd));
-        nrows++;
+/* Move to pose i, settle, grab, estimate, and record the row; rewrite
+ * poses.csv. POSE_STOP when the run must end here (r->stopped says why, or
+ * a signal came). */
+static int measure_pose(const rig_args *a, rig_run *r, int i) {
+    rig_row *row = &r->rows[r->nrows];
+    pi_frame frame;
+    pi_result res;
+    char err[RIG_ERR_LEN], pierr[PI_ERR_LEN], path[4096];
+    double t0 = now_ms(), t1;
+    int attempt, k, moved = 0;
 
-        /* Move, wait Idle; a reset or alarm mid-move is recovered and the
-         * pose retried, since the stage then stands at an unknown place. */
-        for (attempt = 0; attempt <= retries && !stop_signal; attempt++) {
-            if (stage_move_wait(&st, r->cmd, feed, err) == 0) {
-                moved = 1;
-                break;
-            }
-            fprintf(stderr, "poserig: pose %d: %s\n", i, err);
-            if (stop_signal || st.dead) break;
-            if (!st.reset_seen && !st.last_alarm && strcmp(st.last.state, "Alarm") != 0) break;
-            if (attempt == retries) break;
-            fprintf(stderr, "poserig: recovering the stage (%s)\n", home ? "re-home if needed" : "unlock if safe");
-            if (stage_recover(&st, home, err) != 0) {
-                fprintf(stderr, "poserig: %s\n", err);
-                break;
-            }
-        }
-        r->move_ms = now_ms() - t0;
-        memcpy(r->mpos, st.last.mpos, sizeof(r->mpos));
-        memcpy(r->wpos, st.last.wpos, sizeof(r->wpos));
-        if (!moved) {
-            snprintf(r->status, sizeof(r->status), "%.*s", (int)sizeof(r->status) - 1, stop_signal ? "interrupted" : err);
-            failed++;
-            /* Any stage failure but a refused line (error:N) leaves the
-             * stage in an unknown state: stop rather than measure nonsense. */
-            if (stop_signal) break;
-            if (st.dead || !(st.last_error && strstr(err, "error:"))) {
-                stopped = "the stage failed (see poses.csv)";
-                break;
-            }
-            goto row_done;
-        }
-        t1 = now_ms();
-        settle(settle_ms);
-        r->settle_ms = now_ms() - t1;
-        if (stop_signal) {
-            snprintf(r->status, sizeof(r->status), "interrupted");
-            failed++;
+    memset(row, 0, sizeof(*row));
+    row->index = i;
+    memcpy(row->cmd, r->poses[i].xyz, sizeof(row->cmd));
+    r->nrows++;
+
+    /* Move, wait Idle; a reset or alarm mid-move is recovered and the
+     * pose retried, since the stage then stands at an unknown place. */
+    for (attempt = 0; attempt <= a->retries && !stop_signal; attempt++) {
+        if (stage_move_wait(&r->st, row->cmd, a->feed, err) == 0) {
+            moved = 1;
             break;
         }
-
-        t1 = now_ms();
-        for (k = 0; k <= discard; k++)
-            if (pi_camera_grab(cam, &frame, pierr) != 0) break;
-        r->grab_ms = now_ms() - t1;
-        if (k <= discard) {
-            snprintf(r->status, sizeof(r->status), "%.*s", (int)sizeof(r->status) - 1, pierr);
-            failed++;
-            fprintf(stderr, "poserig: pose %d: %s\n", i, pierr);
-            if (++cam_fail_run >= 3) {
-                stopped = "the camera failed three times in a row";
-                break;
-            }
-            goto row_done;
-        }
-        cam_fail_run = 0;
-        r->decode_ms = frame.decode_ms;
-        if (save_frames) {
-            char a[24], b[24], cc[24];
-            snprintf(r->frame, sizeof(r->frame), "frames/%s_%s_%s.png", fmt_angle(a, sizeof(a), r->cmd[0]),
-                     fmt_angle(b, sizeof(b), r->cmd[1]), fmt_angle(cc, sizeof(cc), r->cmd[2]));
-            snprintf(path, sizeof(path), "%s/%s", out, r->frame);
-            if (pi_frame_save(&frame, path, pierr) != 0) {
-                fprintf(stderr, "poserig: pose %d: %s\n", i, pierr);
-                r->frame[0] = '\0';
-            }
-        }
-        if (pi_infer_frame(ctx, &frame, &res, pierr) != 0) {
-            snprintf(r->status, sizeof(r->status), "%.*s", (int)sizeof(r->status) - 1, pierr);
-            failed++;
-            fprintf(stderr, "poserig: pose %d: %s\n", i, pierr);
-            goto row_done;
-        }
-        r->est[0] = res.x;
-        r->est[1] = res.y;
-        r->est[2] = res.z;
-        r->preprocess_ms = res.preprocess_ms;
-        r->infer_ms = res.infer_ms;
-        r->cx = res.cx;
-        r->cy = res.cy;
-        r->r = res.r;
-        rig_pose_errors(r->est, r->cmd, r->err);
-        r->geo = rig_geodesic_deg(r->est, r->cmd);
-        r->ok = 1;
-        snprintf(r->status, sizeof(r->status), "ok");
-        fprintf(stderr, "poserig: pose %d/%d cmd (%.3f, %.3f, %.3f) est (%.3f, %.3f, %.3f) "
-                        "err (%.3f, %.3f, %.3f)\n", i + 1, npose, r->cmd[0], r->cmd[1], r->cmd[2],
-                r->est[0], r->est[1], r->est[2], r->err[0], r->err[1], r->err[2]);
-row_done:
-        r->pose_ms = now_ms() - t0;
-        /* Rewritten whole after every pose: a run stopped in any way keeps
-         * every pose measured so far in a complete file. */
-        snprintf(path, sizeof(path), "%s/poses.csv", out);
-        if (rig_write_csv(path, rows, nrows, err) != 0) {
-            stopped = "could not write poses.csv";
+        fprintf(stderr, "poserig: pose %d: %s\n", i, err);
+        if (stop_signal || r->st.dead) break;
+        if (!r->st.reset_seen && !r->st.last_alarm && strcmp(r->st.last.state, "Alarm") != 0) break;
+        if (attempt == a->retries) break;
+        fprintf(stderr, "poserig: recovering the stage (%s)\n", a->home ? "re-home if needed" : "unlock if safe");
+        if (stage_recover(&r->st, a->home, err) != 0) {
             fprintf(stderr, "poserig: %s\n", err);
             break;
         }
     }
-
-    if (stop_signal) {
-        stopped = stop_signal == SIGINT ? "interrupted (SIGINT)" : "terminated (SIGTERM)";
-        fprintf(stderr, "poserig: %s: stopping the stage, keeping %d pose(s)\n", stopped, nrows);
+    row->move_ms = now_ms() - t0;
+    memcpy(row->mpos, r->st.last.mpos, sizeof(row->mpos));
+    memcpy(row->wpos, r->st.last.wpos, sizeof(row->wpos));
+    if (!moved) {
+        snprintf(row->status, sizeof(row->status), "%.*s", (int)sizeof(row->status) - 1,
+                 stop_signal ? "interrupted" : err);
+        r->failed++;
+        /* Any stage failure but a refused line (error:N) leaves the
+         * stage in an unknown state: stop rather than measure nonsense. */
+        if (stop_signal) return POSE_STOP;
+        if (r->st.dead || !(r->st.last_error && strstr(err, "error:"))) {
+            r->stopped = "the stage failed (see poses.csv)";
+            return POSE_STOP;
+        }
+        goto row_done;
     }
-    if (stop_signal || stopped) stop_stage(&st);
+    t1 = now_ms();
+    settle(a->settle_ms);
+    row->settle_ms = now_ms() - t1;
+    if (stop_signal) {
+        snprintf(row->status, sizeof(row->status), "interrupted");
+        r->failed++;
+        return POSE_STOP;
+    }
 
-    {
-        rig_summary sum;
-        rig_run_info info;
-        memset(&info, 0, sizeof(info));
-        info.port = st.path;
-        info.camera = camera;
-        info.model = model;
-        info.plan = plan_desc;
-        info.planned = npose;
-        info.done = nrows - failed;
-        info.failed = failed;
-        info.stopped = stopped;
-        info.elapsed_s = (now_ms() - t_start) / 1000.0;
-        info.settle_ms = settle_ms;
-        snprintf(info.started, sizeof(info.started), "%s", startbuf);
-        snprintf(path, sizeof(path), "%s/poses.csv", out);
-        if (rig_write_csv(path, rows, nrows, err) != 0 ||
-            rig_summarise_rows(rows, nrows, &sum, err) != 0) {
+    t1 = now_ms();
+    for (k = 0; k <= a->discard; k++)
+        if (pi_camera_grab(r->cam, &frame, pierr) != 0) break;
+    row->grab_ms = now_ms() - t1;
+    if (k <= a->discard) {
+        snprintf(row->status, sizeof(row->status), "%.*s", (int)sizeof(row->status) - 1, pierr);
+        r->failed++;
+        fprintf(stderr, "poserig: pose %d: %s\n", i, pierr);
+        if (++r->cam_fail_run >= 3) {
+            r->stopped = "the camera failed three times in a row";
+            return POSE_STOP;
+        }
+        goto row_done;
+    }
+    r->cam_fail_run = 0;
+    row->decode_ms = frame.decode_ms;
+    if (a->save_frames) {
+        char x[24], y[24], z[24];
+        snprintf(row->frame, sizeof(row->frame), "frames/%s_%s_%s.png", fmt_angle(x, sizeof(x), row->cmd[0]),
+                 fmt_angle(y, sizeof(y), row->cmd[1]), fmt_angle(z, sizeof(z), row->cmd[2]));
+        snprintf(path, sizeof(path), "%s/%s", a->out, row->frame);
+        if (pi_frame_save(&frame, path, pierr) != 0) {
+            fprintf(stderr, "poserig: pose %d: %s\n", i, pierr);
+            row->frame[0] = '\0';
+        }
+    }
+    if (pi_infer_frame(r->ctx, &frame, &res, pierr) != 0) {
+        snprintf(row->status, sizeof(row->status), "%.*s", (int)sizeof(row->status) - 1, pierr);
+        r->failed++;
+        fprintf(stderr, "poserig: pose %d: %s\n", i, pierr);
+        goto row_done;
+    }
+    row->est[0] = res.x;
+    row->est[1] = res.y;
+    row->est[2] = res.z;
+    row->preprocess_ms = res.preprocess_ms;
+    row->infer_ms = res.infer_ms;
+    row->cx = res.cx;
+    row->cy = res.cy;
+    row->r = res.r;
+    rig_pose_errors(row->est, row->cmd, row->err);
+    row->geo = rig_geodesic_deg(row->est, row->cmd);
+    row->ok = 1;
+    snprintf(row->status, sizeof(row->status), "ok");
+    fprintf(stderr, "poserig: pose %d/%d cmd (%.3f, %.3f, %.3f) est (%.3f, %.3f, %.3f) "
+                    "err (%.3f, %.3f, %.3f)\n", i + 1, r->npose, row->cmd[0], row->cmd[1], row->cmd[2],
+            row->est[0], row->est[1], row->est[2], row->err[0], row->err[1], row->err[2]);
+row_done:
+    row->pose_ms = now_ms() - t0;
+    /* Rewritten whole after every pose: a run stopped in any way keeps
+     * every pose measured so far in a complete file. */
+    snprintf(path, sizeof(path), "%s/poses.csv", a->out);
+    if (rig_write_csv(path, r->rows, r->nrows, err) != 0) {
+        r->stopped = "could not write poses.csv";
+        fprintf(stderr, "poserig: %s\n", err);
+        return POSE_STOP;
+    }
+    return POSE_NEXT;
+}
+
+/* Measure every pose of the plan until the end, a stop, or a signal; on a
+ * stop or a signal, hold and reset the stage. */
+static void run_plan(const rig_args *a, rig_run *r) {
+    int i;
+    time_t now = time(NULL);
+    strftime(r->started, sizeof(r->started), "%Y-%m-%dT%H:%M:%SZ", gmtime(&now));
+    r->t_start = now_ms();
+    for (i = 0; i < r->npose && !stop_signal; i++)
+        if (measure_pose(a, r, i) == POSE_STOP) break;
+    if (stop_signal) {
+        r->stopped = stop_signal == SIGINT ? "interrupted (SIGINT)" : "terminated (SIGTERM)";
+        fprintf(stderr, "poserig: %s: stopping the stage, keeping %d pose(s)\n", r->stopped, r->nrows);
+    }
+    if (stop_signal || r->stopped) stop_stage(&r->st);
+}
+
+/* Write poses.csv, summary.md and boxplot.svg and print the Table 3
+ * summary. Returns the exit status of the run. */
+static int report(const rig_args *a, rig_run *r) {
+    rig_summary sum;
+    rig_run_info info;
+    char err[RIG_ERR_LEN], path[4096];
+    int rc = 0;
+
+    memset(&info, 0, sizeof(info));
+    info.port = r->st.path;
+    info.camera = a->camera;
+    info.model = a->model;
+    info.plan = r->plan_desc;
+    info.planned = r->npose;
+    info.done = r->nrows - r->failed;
+    info.failed = r->failed;
+    info.stopped = r->stopped;
+    info.elapsed_s = (now_ms() - r->t_start) / 1000.0;
+    info.settle_ms = a->settle_ms;
+    snprintf(info.started, sizeof(info.started), "%s", r->started);
+    snprintf(path, sizeof(path), "%s/poses.csv", a->out);
+    if (rig_write_csv(path, r->rows, r->nrows, err) != 0 ||
+        rig_summarise_rows(r->rows, r->nrows, &sum, err) != 0) {
+        fprintf(stderr, "poserig: %s\n", err);
+        rc = EXIT_SOME_FAILED;
+    } else {
+        rig_print_summary(stdout, &info, &sum);
+        snprintf(path, sizeof(path), "%s/summary.md", a->out);
+        if (rig_write_summary_md(path, &info, &sum, r->rows, r->nrows, err) != 0) {
             fprintf(stderr, "poserig: %s\n", err);
             rc = EXIT_SOME_FAILED;
-        } else {
-            rig_print_summary(stdout, &info, &sum);
-            snprintf(path, sizeof(path), "%s/summary.md", out);
-            if (rig_write_summary_md(path, &info, &sum, rows, nrows, err) != 0) {
-                fprintf(stderr, "poserig: %s\n", err);
-                rc = EXIT_SOME_FAILED;
-            }
-            snprintf(path, sizeof(path), "%s/boxplot.svg", out);
-            if (rig_write_boxplot_svg(path, &sum, rows, nrows, err) != 0) {
-                fprintf(stderr, "poserig: %s\n", err);
-                rc = EXIT_SOME_FAILED;
-            }
-            fflush(stdout);
-            fprintf(stderr, "poserig: results in %s/ (poses.csv, summary.md, boxplot.svg%s)\n", out,
-                    save_frames ? ", frames/" : "");
         }
+        snprintf(path, sizeof(path), "%s/boxplot.svg", a->out);
+        if (rig_write_boxplot_svg(path, &sum, r->rows, r->nrows, err) != 0) {
+            fprintf(stderr, "poserig: %s\n", err);
+            rc = EXIT_SOME_FAILED;
+        }
+        fflush(stdout);
+        fprintf(stderr, "poserig: results in %s/ (poses.csv, summary.md, boxplot.svg%s)\n", a->out,
+                a->save_frames ? ", frames/" : "");
     }
-    if (failed || stopped || nrows < npose) rc = EXIT_SOME_FAILED;
+    if (r->failed || r->stopped || r->nrows < r->npose) rc = EXIT_SOME_FAILED;
     if (stop_signal) rc = 128 + stop_signal;
-    goto out;
-
-setup_fail:
-    fprintf(stderr, "poserig: %s\n", err);
-    rc = stop_signal ? 128 + stop_signal : EXIT_USAGE;
-out:
-    stage_close(&st);
-    pi_camera_close(cam);
-    pi_close(ctx);
-    free(rows);
-    free(poses);
     return rc;
-badarg:
-    fprintf(stderr, "poserig: bad value '%s' for --%s (see --help)\n", optarg, longopts[longidx].name);
-    return EXIT_USAGE;
+}
+
+/* Close what open_rig opened (any part of it). */
+static void close_rig(rig_run *r) {
+    stage_close(&r->st);
+    pi_camera_close(r->cam);
+    pi_close(r->ctx);
+    free(r->rows);
+    free(r->poses);
+}
+
+int main(int argc, char **argv) {
+    rig_args a;
+    rig_run r;
+    char err[RIG_ERR_LEN];
+    int rc;
+
+    if ((rc = parse_args(argc, argv, &a)) >= 0) return rc;
+    memset(&r, 0, sizeof(r));
+    r.st.fd = -1;
+    if (open_rig(&a, &r, err) != 0) {
+        fprintf(stderr, "poserig: %s\n", err);
+        rc = stop_signal ? 128 + stop_signal : EXIT_USAGE;
+    } else {
+        run_plan(&a, &r);
+        rc = report(&a, &r);
+    }
+    close_rig(&r);
+    return rc;
 }
