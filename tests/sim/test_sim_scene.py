@@ -237,3 +237,62 @@ def test_sim_render_scene_writes_frame_and_truth(tmp_path, texture_png):
     img = cv2.imread(str(out))
     t = json.loads(truth.read_text())
     assert img.shape == (512, 640, 3) and t["pose"] == [3, 4, 5] and t["scene"]["mount"]["kind"] == "post"
+
+
+def test_photo_backgrounds(tmp_path, stripe_rgb):
+    photos = tmp_path / "lab"
+    photos.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(2):  # two "photos": noise blocks in a colour each
+        img = np.kron(rng.integers(0, 255, (12, 16, 3)), np.ones((20, 20, 1))).astype(np.uint8)
+        img[..., i] = 255
+        cv2.imwrite(str(photos / f"p{i}.jpg"), img)
+    (photos / "notes.txt").write_text("not a photo")
+    scene = scene_from_dict({"camera": SMALL_CAMERA, "mount": {"kind": {"post": 1}},
+                             "background": {"kind": {"photo": 1}, "photos": "lab", "photo_gain": [0.5, 1.5]}},
+                            str(tmp_path / "scene.json"))
+    assert [os.path.basename(p) for p in scene.photos] == ["p0.jpg", "p1.jpg"]
+    assert [n for n, _ in scene.settings()["photos"]] == ["p0.jpg", "p1.jpg"]
+    sr = SceneRenderer(stripe_rgb, scene)
+    used = set()
+    for i in range(6):
+        img, params = sr.frame((0, 0, 0), np.random.default_rng([1, i]))
+        used.add(params["background"]["photo"])
+        corner = img[:20].reshape(-1, 3).astype(float)
+        assert corner.std(axis=0).max() > 10  # the photo's blocks, not a flat colour
+    assert used == {"p0.jpg", "p1.jpg"}
+
+
+def test_vcam_serves_scene_frames(tmp_path, texture_png):
+    import tempfile
+    d = tempfile.mkdtemp(prefix="vs", dir="/tmp")
+    vsock = os.path.join(d, "cam")
+    scene = write_scene(tmp_path, dict(json.load(open(os.path.join(SCENES, "rig.json"))), camera=SMALL_CAMERA,
+                                       view={}))
+    proc = subprocess.Popen([sys.executable, "-m", "sim.cli", "vcam", "--texture", texture_png, "--scene", scene,
+                             "--pose", "5", "6", "7", "--socket", vsock, "--seed", "3"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().startswith("VCAM "), proc.stderr.read()
+        import socket
+        frames = []
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as c:
+            c.settimeout(30)
+            c.connect(vsock)
+            f = c.makefile("rb")
+            for _ in range(2):
+                c.sendall(b"grab\n")
+                kind, n = f.readline().split()
+                assert kind == b"FRAME"
+                frames.append(cv2.imdecode(np.frombuffer(f.read(int(n)), np.uint8), cv2.IMREAD_COLOR))
+    finally:
+        proc.send_signal(15)
+        rc = proc.wait(timeout=20)
+        os.rmdir(d)
+    assert rc == 0
+    # Frame n is the scene's draw from default_rng([seed, n]): the same as rendering it here.
+    sr = SceneRenderer(texture_png, load_scene(scene))
+    for n, got in enumerate(frames):
+        want, _ = sr.frame((5.0, 6.0, 7.0), np.random.default_rng([3, n]))
+        np.testing.assert_array_equal(got[:, :, ::-1], want)
+    assert not np.array_equal(frames[0], frames[1])  # the sensor noise differs
