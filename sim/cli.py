@@ -142,6 +142,8 @@ def _scene(args):
     clash += [f"--{attr.replace('_', '-')}" for attr in _RZ_FLAGS.values() if getattr(args, attr, None) is not None]
     if getattr(args, "randomize", False):
         clash.append("--randomize")
+    if getattr(args, "multisamples", 0):
+        clash.append("--multisamples")
     if clash:
         raise UsageError(f"--scene {args.scene} describes the background, lights and randomisation; "
                          f"drop {', '.join(clash)} (or edit the scene file)")

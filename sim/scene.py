@@ -49,6 +49,8 @@ class _Reader:
     def __init__(self, source, obj, path, keys):
         self.source, self.path = source, path
         if not isinstance(obj, dict):
+            if not path:
+                raise SceneError(f"{source}: expected a JSON object (a scene: docs/sim.md, 'Rig scenes')")
             raise SceneError(f"{source}: key {path!r}: expected a JSON object")
         unknown = sorted(set(obj) - set(keys))
         if unknown:
@@ -300,6 +302,13 @@ def _background(r, base):
                         if n.lower().endswith(PHOTO_EXTENSIONS) and not n.startswith("."))
         if not photos:
             r.fail("photos", f"folder {path} holds no images ({', '.join(PHOTO_EXTENSIONS)})")
+        for p in photos:  # a header check now, so that a broken file fails before any rendering
+            try:
+                from PIL import Image
+                with Image.open(p) as im:
+                    im.verify()
+            except Exception as e:  # PIL raises many kinds for a broken file
+                r.fail("photos", f"{p}: not a readable image ({e})")
     if bg["kind"].get("photo", 0) > 0 and not photos:
         r.fail("kind", "kind 'photo' needs a 'photos' folder")
     return bg, photos

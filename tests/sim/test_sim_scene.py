@@ -75,6 +75,8 @@ def test_shipped_scenes_parse():
     ({"distortion": {"k1": [-5, 0]}}, ["'distortion.k1'"]),
     ({"camera": {"focal_mm": 4}, "distortion": {"k1": -1.0}}, ["'distortion'", "fold"]),
     ({"format": "spherepose-scene-9"}, ["'format'"]),
+    ([1, 2], ["expected a JSON object"]),
+    ({"sphere": {"specular": float("nan")}}, ["'sphere.specular'"]),
 ])
 def test_scene_errors_name_file_and_key(tmp_path, obj, words):
     path = write_scene(tmp_path, obj)
@@ -261,6 +263,15 @@ def test_photo_backgrounds(tmp_path, stripe_rgb):
         corner = img[:20].reshape(-1, 3).astype(float)
         assert corner.std(axis=0).max() > 10  # the photo's blocks, not a flat colour
     assert used == {"p0.jpg", "p1.jpg"}
+
+
+def test_broken_photo_is_named_before_rendering(tmp_path):
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "a.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    path = write_scene(tmp_path, {"background": {"kind": {"photo": 1}, "photos": "lab"}})
+    with pytest.raises(SceneError, match="a.png: not a readable image") as e:
+        load_scene(path)
+    assert path in str(e.value) and "'background.photos'" in str(e.value)
 
 
 def test_vcam_serves_scene_frames(tmp_path, texture_png):
