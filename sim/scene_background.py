@@ -7,7 +7,8 @@ comes from default_rng(seed), so the frame stays a function of its draw.
 - flat: the draw's colour.
 - gradient: colour -> color2, linear at a random angle or radial from a random
   centre (half each).
-- clutter: a flat or gradient base, then N shapes (rotated rectangles, ellipses,
+- clutter: a flat or gradient base mottled by smooth noise (blotches 16 to
+  96 px across, amplitude up to 25 levels), then N shapes (rotated rectangles, ellipses,
   thick lines, triangles) of the scene's shape colours (any brightness) and
   sizes (a fraction of the frame's larger side), drawn antialiased.
 - photo: the draw's image of the photos folder, scaled to cover the frame
@@ -109,12 +110,15 @@ def make_background(b, spec, photos, width, height):
         img[:] = np.asarray(b["color"], np.float32)
     elif kind == "gradient":
         img = _gradient(rng, width, height, b["color"], b["color2"])
-    else:  # clutter on a flat or gradient base
+    else:  # clutter on a flat or gradient base, mottled by smooth noise (walls, benches, cloth)
         if rng.uniform() < 0.5:
             base = np.empty((height, width, 3), np.float32)
             base[:] = np.asarray(b["color"], np.float32)
         else:
             base = _gradient(rng, width, height, b["color"], b["color2"])
+        cell = int(rng.integers(16, 97))
+        blotches = rng.normal(0.0, rng.uniform(0.0, 25.0), size=(height // cell + 2, width // cell + 2, 3))
+        base += cv2.resize(blotches.astype(np.float32), (width, height), interpolation=cv2.INTER_CUBIC)
         img = np.clip(np.rint(base), 0, 255).astype(np.uint8)
         _shapes(rng, img, spec)
         img = img.astype(np.float32)
