@@ -94,7 +94,7 @@ def _add_scene_args(p):
                    help="lights JSON: a list of {\"direction\": [x,y,z] toward the light, \"intensity\": i, "
                         "\"color\": [r,g,b]} (default: key, fill and rim lights, docs/sim.md)")
     p.add_argument("--scene", metavar="FILE",
-                   help="rig scene JSON (docs/sim.md, 'Scenes'; e.g. sim/scenes/train.json, sim/scenes/rig.json): "
+                   help="rig scene JSON (docs/sim.md, 'Rig scenes'; e.g. sim/scenes/train.json, sim/scenes/rig.json): "
                         "mount, background, lights, material, lens and camera effects, drawn per frame within "
                         "its ranges; replaces --background, --lights and the randomisation flags; --camera "
                         "replaces the scene's camera")
@@ -263,7 +263,7 @@ def get_args_parser():
                    help="with --scene: also write the frame's truth line (pose, circle, the scene's draw)")
 
     p = sub.add_parser("dataset", help="a labelled dataset (P1 protocol by default)",
-                       description="Render a dataset <split>/<x>_<y>_<z>.png with a record dataset.json. "
+                       description="Render a dataset <split>/<x>_<y>_<z>.png (and <split>/truth.jsonl) with a record dataset.json. "
                                    "Resumable: rerun the same command to finish a killed run.",
                        formatter_class=_Help)
     _add_scene_args(p)

@@ -2,7 +2,7 @@
 
 The mount is fixed in the world, as on a rig where the sphere sits on a post
 that the stages turn about axes through the sphere's centre: the sphere's pose
-changes, the post's image does not (docs/sim.md, "Scenes"). Every part
+changes, the post's image does not (docs/sim.md, "Rig scenes"). Every part
 touches the sphere: a part of radius r ends where its rim meets the sphere,
 at sqrt(R^2 - r^2) from the centre along its axis.
 
