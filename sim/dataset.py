@@ -28,14 +28,15 @@ import os
 import shlex
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from sim import names
 from sim.camera import Camera
-from sim.frames import (PNG_FILTER, PNG_LEVEL, encode_png, frame_problem, remove_stale_temporaries,
-                        write_atomic)
+from sim.frames import (PNG_FILTER, PNG_LEVEL, commit_temporary, encode_png, frame_problem,
+                        remove_stale_temporaries, write_atomic, write_temporary)
 from sim.randomize import Randomization
 
 SPLITS = ("train", "val", "test", "test_offgrid")
@@ -43,6 +44,7 @@ RECORD = "dataset.json"
 TRUTH = "truth.jsonl"
 FORMAT = "spherepose-dataset-1"
 AXES = ("x", "y", "z")
+COMMIT_THREADS = 4     # the parent's threads that fsync and rename finished frames (fsyncs overlap)
 
 
 class DatasetError(ValueError):
@@ -183,7 +185,6 @@ def _frames_to_render(poses, out, camera, workers):
     existing frame that failed sim.frames.frame_problem (a file is not taken as done for existing: a
     crash or a full disk can leave one empty or cut short). Frames are checked on `workers` threads
     (decoding releases the GIL)."""
-    from concurrent.futures import ThreadPoolExecutor
     paths = [os.path.join(out, split, names.format_name(*pose)) for _, split, pose in poses]
     present = [i for i, p in enumerate(paths) if os.path.exists(p)]
     with ThreadPoolExecutor(max(1, workers)) as ex:
@@ -226,7 +227,11 @@ def _worker_init(cfg, single_thread_gl):
 
 
 def _render_task(task):
-    """Render, encode and atomically write one frame; returns its path."""
+    """Render and encode one frame and write it to a temporary file; returns (temporary, path).
+
+    The parent commits it (sim.frames.commit_temporary: fsync, rename) on its own threads, so a
+    worker goes on rendering while the disk catches up (an fsync is about 6 ms here, half a
+    frame's rendering)."""
     from sim.randomize import render_frame
     index, path, pose = task
     cfg = _WORKER["cfg"]
@@ -235,8 +240,7 @@ def _render_task(task):
         img, _ = _WORKER["renderer"].frame(pose, rng)
     else:
         img = render_frame(_WORKER["renderer"], pose, cfg.randomization, rng)
-    write_atomic(path, encode_png(img))
-    return path
+    return write_temporary(path, encode_png(img)), path
 
 
 def frame_truth(cfg, index, pose):
@@ -291,8 +295,11 @@ def _pool_context():
     return multiprocessing.get_context("spawn")
 
 
-def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
+def build(cfg, out, *, workers=None, progress=True, command=None, log=print, engine="local", ray_address=None):
     """Render the dataset of `cfg` into folder `out`; only missing frames are rendered (resume).
+
+    engine: "local" (a pool of `workers` processes here) or "ray" (Ray tasks, sim/engine_ray.py: the
+    cluster at `ray_address` or RAY_ADDRESS, else a local instance of `workers` CPUs); same frames.
 
     Returns the record written to OUT/dataset.json.
     """
@@ -345,6 +352,7 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
     }
     _write_record(out, record)
 
+    requested_workers = workers
     workers = workers or len(os.sched_getaffinity(0))
     camera = cfg.scene.camera if getattr(cfg, "scene", None) is not None else cfg.camera   # the frames' size
     tasks, broken = _frames_to_render(poses, out, camera, workers)
@@ -361,20 +369,37 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
     if progress:
         from tqdm import tqdm
         bar = tqdm(total=len(poses), initial=done_before, unit="frame", desc="render", smoothing=0.05)
+    committer = ThreadPoolExecutor(COMMIT_THREADS)
+    commits = []
     try:
-        if workers == 1:
+        if engine == "ray":
+            from dataclasses import replace
+            from sim import engine_ray
+            # Workers may run elsewhere with another working directory: absolute paths only.
+            remote = [(i, os.path.abspath(p), pose) for i, p, pose in tasks]
+            key = hashlib.sha256(json.dumps([settings, os.path.abspath(out)], sort_keys=True).encode()).hexdigest()
+            workers = engine_ray.render(replace(cfg, texture=os.path.abspath(cfg.texture)), remote, key,
+                                        address=ray_address, workers=requested_workers,
+                                        on_frames=bar.update if bar else None, log=log) if tasks else 0
+        elif engine != "local":
+            raise DatasetError(f"unknown engine {engine!r} (choose local or ray)")
+        elif workers == 1:
             _worker_init(cfg, single_thread_gl=False)
-            for task in tasks:
-                _render_task(task)
+            for tmp, path in map(_render_task, tasks):
+                commits.append(committer.submit(commit_temporary, tmp, path))
                 if bar:
                     bar.update(1)
         else:
             ctx = _pool_context()
             with ctx.Pool(workers, initializer=_worker_init, initargs=(cfg, True)) as pool:
-                for _ in pool.imap_unordered(_render_task, tasks, chunksize=4):
+                for tmp, path in pool.imap_unordered(_render_task, tasks, chunksize=4):
+                    commits.append(committer.submit(commit_temporary, tmp, path))
                     if bar:
                         bar.update(1)
+        for c in commits:
+            c.result()          # a failed commit (disk full, ...) fails the run: never marked complete
     finally:
+        committer.shutdown(wait=True)   # frames rendered before an interruption are still committed
         if bar:
             bar.close()
     write_truth(cfg, out, poses)
@@ -382,7 +407,8 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
 
     record["complete"] = True
     record["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-    record["last_run"] = {"rendered": len(tasks), "damaged_rendered_again": len(broken), "workers": workers,
+    record["last_run"] = {"rendered": len(tasks), "damaged_rendered_again": len(broken), "engine": engine,
+                          "workers": workers,
                           "seconds": round(elapsed, 3),
                           "frames_per_s": round(len(tasks) / elapsed, 2) if elapsed > 0 and tasks else None}
     _write_record(out, record)

@@ -30,11 +30,9 @@ def encode_png(rgb):
     return buf.tobytes()
 
 
-def write_atomic(path, data):
-    """Write bytes to `path` through a temporary file in the same folder, then rename.
-
-    A reader (or a resumed run) sees the whole file or none of it, never half of it.
-    """
+def write_temporary(path, data):
+    """Write bytes to a new temporary file in `path`'s folder; returns its name (commit_temporary
+    then makes it `path`). A temporary a crash leaves behind is removed by remove_stale_temporaries."""
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=".part", dir=folder)
     try:
@@ -42,17 +40,44 @@ def write_atomic(path, data):
         os.fchmod(fd, 0o666 & ~_UMASK)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
-            f.flush()
-            # The bytes reach the disk before the name does: after a crash or power cut the name holds
-            # the whole frame or nothing, never an empty or short file that a resume takes as done.
-            os.fsync(f.fileno())
+    except BaseException:
+        _unlink_quietly(tmp)
+        raise
+    return tmp
+
+
+def commit_temporary(tmp, path):
+    """fsync the temporary file `tmp`, then rename it to `path`.
+
+    The bytes reach the disk before the name does: after a crash or power cut
+    the name holds the whole file or nothing, never an empty or short file
+    that a resumed dataset would take for a finished frame.
+    """
+    try:
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         os.replace(tmp, path)
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        _unlink_quietly(tmp)
         raise
+
+
+def write_atomic(path, data):
+    """Write bytes to `path` through a temporary file in the same folder, fsync'ed, then renamed.
+
+    A reader (or a resumed run) sees the whole file or none of it, never half of it.
+    """
+    commit_temporary(write_temporary(path, data), path)
+
+
+def _unlink_quietly(path):
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
 
 
 def remove_stale_temporaries(folder):
