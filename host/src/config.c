@@ -24,6 +24,10 @@ void config_init(pi_config *c)
     c->refine = 1;
     c->timeout_ms = 5000;
     c->socket_mode = 0660;
+    c->workers = 2;
+    c->max_clients = 64;
+    c->idle_timeout_ms = 60000;
+    c->max_file_bytes = 64L * 1024 * 1024;
 }
 
 void config_clear_allow_dirs(pi_config *c)
@@ -141,10 +145,13 @@ int config_set(pi_config *c, const char *key_in, const char *v, char *err)
     if (!strcmp(key, "allow_dir")) return add_allow_dir(c, v, err);
     if (!strcmp(key, "tcp_remote")) return set_bool(&c->tcp_remote, key, v, err);
     if (!strcmp(key, "token_file")) return set_str(&c->token_file, v, err);
+    if (!strcmp(key, "workers")) return set_int(&c->workers, key, v, 1, 64, err);
+    if (!strcmp(key, "max_clients")) return set_int(&c->max_clients, key, v, 1, 4096, err);
+    if (!strcmp(key, "idle_timeout_ms")) return set_int(&c->idle_timeout_ms, key, v, 100, 86400000, err);
+    if (!strcmp(key, "max_file_bytes")) return set_long(&c->max_file_bytes, key, v, 1024, 1L << 31, err);
     snprintf(err, PI_ERR_LEN,
-             "unknown key \"%.64s\"; keys: model, serve, camera, continuous, count, interval_ms, "
-             "threads, warmup, max_pixels, timeout_ms, timings, socket_mode, socket_group, allow_dir, "
-             "tcp_remote, token_file", key_in);
+             "unknown key \"%.64s\" (the keys: poseinfer --help, and docs/poseinfer.md, \"Config file\")",
+             key_in);
     return -1;
 }
 

@@ -24,6 +24,11 @@ typedef struct pi_config {
     int n_allow_dirs;
     int tcp_remote;     /* tcp_remote = yes|no: a tcp: address other than loopback */
     char *token_file;   /* token_file = FILE: TCP clients first send "auth TOKEN" */
+    /* Bounds against a client that would hold the daemon. */
+    int workers;        /* workers = N: threads that infer frames (default 2) */
+    int max_clients;    /* max_clients = N: connections at once (default 64) */
+    int idle_timeout_ms; /* idle_timeout_ms = N: close a client idle this long */
+    long max_file_bytes; /* max_file_bytes = N: refuse larger image files and frames */
 } pi_config;
 
 /* Defaults. */

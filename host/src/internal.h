@@ -46,6 +46,17 @@ int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err);
 /* The same from an open descriptor (fd < 0: open path); fd is closed. */
 int pi_load_fd(pi_ctx *ctx, int fd, const char *path, pi_frame *f, char *err);
 
+/* A context that shares base's session, parameters and metadata and has
+ * buffers of its own: one per thread (ONNX Runtime's Run is thread-safe on
+ * one session). Close it with pi_close, in any order with the base: the
+ * session is freed with the last of them. */
+pi_ctx *pi_clone(pi_ctx *base, char *err);
+
+/* Free the read buffer and the decoded frame when either is over `over`
+ * bytes (after a large frame, so the daemon does not keep it). 1 when it
+ * freed something. */
+int pi_release_large(pi_ctx *ctx, size_t over);
+
 /* Read, decode and infer from an open descriptor (closed in every case). */
 int pi_infer_fd(pi_ctx *ctx, int fd, const char *name, pi_result *res, char *err);
 

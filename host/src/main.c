@@ -51,6 +51,11 @@ static void usage(FILE *f)
         "      --timings          add decode_ms, preprocess_ms, infer_ms, cx, cy, r [timings]\n"
         "      --no-refine        the network's angles, not refined against the model's texture\n"
         "                         (the residual and confidence still at them) [refine = no]\n"
+        "      --max-file-bytes N refuse larger image files and frames (default 67108864) [max_file_bytes]\n"
+        "      --workers N        daemon threads that infer frames (default 2) [workers]\n"
+        "      --max-clients N    daemon connections at once; the next gets an error (default 64) [max_clients]\n"
+        "      --idle-timeout-ms N  close a daemon client with no request for N ms (default 60000)\n"
+        "                         [idle_timeout_ms]\n"
         "      --allow-dir DIR    the daemon's `infer PATH` may read files beneath DIR; repeat for\n"
         "                         more (default none: frames come from the camera or the socket) [allow_dir]\n"
         "      --dump-tensor OUT  write the network input of the one IMAGE as raw float32 [3,S,S]\n"
@@ -79,6 +84,10 @@ static const struct option long_opts[] = {
     {"timings", no_argument, 0, 9},
     {"dump-tensor", required_argument, 0, 10},
     {"allow-dir", required_argument, 0, 11},
+    {"max-file-bytes", required_argument, 0, 12},
+    {"workers", required_argument, 0, 13},
+    {"max-clients", required_argument, 0, 14},
+    {"idle-timeout-ms", required_argument, 0, 15},
     {"no-refine", no_argument, 0, 40},
     {"help", no_argument, 0, 'h'},
     {0, 0, 0, 0},
@@ -260,6 +269,10 @@ int main(int argc, char **argv)
             allow_flag = 1;
             key = "allow_dir";
             break;
+        case 12: key = "max_file_bytes"; break;
+        case 13: key = "workers"; break;
+        case 14: key = "max_clients"; break;
+        case 15: key = "idle_timeout_ms"; break;
         case 40: key = "refine"; val = "no"; break;
         case 'h': usage(stdout); rc = 0; goto out;
         default: usage(stderr); goto out;
@@ -292,6 +305,7 @@ int main(int argc, char **argv)
         goto out;
     }
 
+    pi_max_file_bytes = cfg.max_file_bytes;
     pi_options_init(&o);
     o.intra_threads = cfg.threads;
     o.warmup_runs = cfg.warmup;

@@ -47,6 +47,9 @@ struct pi_ctx {
     shim_mat *mat;          /* decoded frame of the last pi_infer_file/memory */
     unsigned char *filebuf; /* reused read buffer */
     size_t filecap;
+    size_t frame_bytes;     /* size of the pixels held in mat */
+    pi_ctx *parent;         /* a clone (pi_clone): the context that owns the session */
+    int refs;               /* the owner: itself plus its clones (atomic) */
 };
 
 static clockid_t pi_clock = CLOCK_MONOTONIC;
@@ -358,6 +361,34 @@ fail:
     return -1;
 }
 
+/* The per-thread part of a context: tensors that wrap buffers allocated
+ * once (Run writes into them), and the decode holder. */
+static int make_io(pi_ctx *ctx, char *err)
+{
+    const int64_t S = ctx->pp.size;
+    const int64_t in_shape[4] = {1, 3, S, S}, e_shape[2] = {1, 3}, r_shape[3] = {1, 3, 3};
+    size_t n = (size_t)(3 * S * S);
+    ctx->in_buf = calloc(n, sizeof(float));
+    if (!ctx->in_buf) { pi_seterr(err, "pi_open: out of memory"); goto fail; }
+    ORT_CHECK(ctx->ort->CreateCpuMemoryInfo(OrtArenaAllocator, OrtMemTypeDefault, &ctx->mem),
+              "CreateCpuMemoryInfo");
+    ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->in_buf, n * sizeof(float), in_shape, 4,
+                                                       ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->in_val),
+              "CreateTensorWithDataAsOrtValue");
+    ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->euler, sizeof ctx->euler, e_shape, 2,
+                                                       ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[0]),
+              "CreateTensorWithDataAsOrtValue");
+    if (ctx->has_rotmat)
+        ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->rot, sizeof ctx->rot, r_shape, 3,
+                                                           ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[1]),
+                  "CreateTensorWithDataAsOrtValue");
+    ctx->mat = shim_mat_new();
+    if (!ctx->mat) { pi_seterr(err, "pi_open: out of memory"); goto fail; }
+    return 0;
+fail:
+    return -1;
+}
+
 pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
 {
     pi_ctx *ctx = NULL;
@@ -378,6 +409,7 @@ pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
     }
     ctx = calloc(1, sizeof *ctx);
     if (!ctx) { pi_seterr(err, "pi_open: out of memory"); return NULL; }
+    ctx->refs = 1;
     ctx->max_pixels = opt->max_pixels > 0 ? opt->max_pixels : PI_DEFAULT_MAX_PIXELS;
     ctx->ort = OrtGetApiBase()->GetApi(ORT_API_VERSION);
     if (!ctx->ort) {
@@ -413,29 +445,8 @@ pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
     if (check_contract(ctx, model_path, err) < 0) goto fail;
     if (setup_refine(ctx, model_path, opt, err) < 0) goto fail;
 
-    /* Tensors wrap buffers allocated once; Run writes into them. */
-    {
-        const int64_t S = ctx->pp.size;
-        const int64_t in_shape[4] = {1, 3, S, S}, e_shape[2] = {1, 3}, r_shape[3] = {1, 3, 3};
-        size_t n = (size_t)(3 * S * S);
-        (void)one;
-        ctx->in_buf = calloc(n, sizeof(float));
-        if (!ctx->in_buf) { pi_seterr(err, "pi_open: out of memory"); goto fail; }
-        ORT_CHECK(ctx->ort->CreateCpuMemoryInfo(OrtArenaAllocator, OrtMemTypeDefault, &ctx->mem),
-                  "CreateCpuMemoryInfo");
-        ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->in_buf, n * sizeof(float), in_shape, 4,
-                                                           ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->in_val),
-                  "CreateTensorWithDataAsOrtValue");
-        ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->euler, sizeof ctx->euler, e_shape, 2,
-                                                           ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[0]),
-                  "CreateTensorWithDataAsOrtValue");
-        if (ctx->has_rotmat)
-            ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->rot, sizeof ctx->rot, r_shape, 3,
-                                                               ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[1]),
-                      "CreateTensorWithDataAsOrtValue");
-    }
-    ctx->mat = shim_mat_new();
-    if (!ctx->mat) { pi_seterr(err, "pi_open: out of memory"); goto fail; }
+    (void)one;
+    if (make_io(ctx, err) < 0) goto fail;
 
     /* Warm-up: the first Run allocates and plans; do it now, not on the
      * first frame. */
@@ -447,14 +458,25 @@ fail:
     return NULL;
 }
 
-void pi_close(pi_ctx *ctx)
+/* Free the per-thread part (make_io), and the read buffer. */
+static void release_io(pi_ctx *ctx)
 {
-    if (!ctx) return;
     if (ctx->ort) {
         if (ctx->out_val[1]) ctx->ort->ReleaseValue(ctx->out_val[1]);
         if (ctx->out_val[0]) ctx->ort->ReleaseValue(ctx->out_val[0]);
         if (ctx->in_val) ctx->ort->ReleaseValue(ctx->in_val);
         if (ctx->mem) ctx->ort->ReleaseMemoryInfo(ctx->mem);
+    }
+    free(ctx->in_buf);
+    free(ctx->filebuf);
+    shim_mat_free(ctx->mat);
+    rf_work_free(ctx->rf_w);
+}
+
+static void destroy(pi_ctx *ctx)
+{
+    release_io(ctx);
+    if (ctx->ort) {
         if (ctx->sess) ctx->ort->ReleaseSession(ctx->sess);
         if (ctx->opts) ctx->ort->ReleaseSessionOptions(ctx->opts);
         if (ctx->env) ctx->ort->ReleaseEnv(ctx->env);
@@ -466,11 +488,79 @@ void pi_close(pi_ctx *ctx)
     free(ctx->meta_keys);
     free(ctx->meta_vals);
     rf_texture_free(ctx->rf_tex);
-    free(ctx->in_buf);
-    free(ctx->filebuf);
-    shim_mat_free(ctx->mat);
-    rf_work_free(ctx->rf_w);
     free(ctx);
+}
+
+/* The session is freed with the last context that uses it. */
+static void unref(pi_ctx *base)
+{
+    if (__atomic_sub_fetch(&base->refs, 1, __ATOMIC_ACQ_REL) == 0) destroy(base);
+}
+
+void pi_close(pi_ctx *ctx)
+{
+    if (!ctx) return;
+    if (ctx->parent) {
+        pi_ctx *base = ctx->parent;
+        release_io(ctx);
+        free(ctx);
+        unref(base);
+    } else {
+        unref(ctx);
+    }
+}
+
+pi_ctx *pi_clone(pi_ctx *base, char *err)
+{
+    pi_ctx *ctx;
+    if (!base) { pi_seterr(err, "pi_clone: no model"); return NULL; }
+    if (base->parent) base = base->parent;
+    ctx = malloc(sizeof *ctx);
+    if (!ctx) { pi_seterr(err, "pi_clone: out of memory"); return NULL; }
+    /* Everything read-only is shared with the base (session, parameters,
+     * metadata); the buffers are the clone's own. */
+    *ctx = *base;
+    ctx->parent = base;
+    ctx->env = NULL;
+    ctx->opts = NULL;
+    ctx->mem = NULL;
+    ctx->in_val = ctx->out_val[0] = ctx->out_val[1] = NULL;
+    ctx->in_buf = NULL;
+    ctx->mat = NULL;
+    ctx->filebuf = NULL;
+    ctx->filecap = 0;
+    ctx->rf_w = NULL;
+    ctx->frame_bytes = 0;
+    ctx->nmeta = 0;
+    ctx->meta_keys = ctx->meta_vals = NULL;
+    __atomic_add_fetch(&base->refs, 1, __ATOMIC_ACQ_REL);
+    if (make_io(ctx, err) < 0) {
+        pi_close(ctx);
+        return NULL;
+    }
+    return ctx;
+}
+
+int pi_release_large(pi_ctx *ctx, size_t over)
+{
+    int freed = 0;
+    if (!ctx) return 0;
+    if (ctx->filecap > over) {
+        free(ctx->filebuf);
+        ctx->filebuf = NULL;
+        ctx->filecap = 0;
+        freed = 1;
+    }
+    if (ctx->frame_bytes > over) {
+        shim_mat *m = shim_mat_new();
+        if (m) {
+            shim_mat_free(ctx->mat);
+            ctx->mat = m;
+            ctx->frame_bytes = 0;
+            freed = 1;
+        }
+    }
+    return freed;
 }
 
 int pi_input_size(const pi_ctx *ctx) { return ctx ? ctx->pp.size : 0; }
@@ -478,6 +568,7 @@ int pi_input_size(const pi_ctx *ctx) { return ctx ? ctx->pp.size : 0; }
 const char *pi_metadata(const pi_ctx *ctx, const char *key)
 {
     if (!ctx || !key) return NULL;
+    if (ctx->parent) ctx = ctx->parent;
     for (size_t i = 0; i < ctx->nmeta; i++)
         if (strcmp(ctx->meta_keys[i], key) == 0) return ctx->meta_vals[i];
     return NULL;
@@ -680,6 +771,7 @@ int pi_infer_memory(pi_ctx *ctx, const void *buf, size_t len, pi_result *res, ch
     memset(res, 0, sizeof *res);
     if (!ctx || !buf) { pi_seterr(err, "pi_infer_memory: no data"); return -1; }
     if (pi_decode_into(ctx->mat, buf, len, ctx->max_pixels, &f, err) < 0) return -1;
+    ctx->frame_bytes = f.stride * (size_t)f.height;
     return pi_infer_frame(ctx, &f, res, err);
 }
 
@@ -761,6 +853,7 @@ int pi_load_fd(pi_ctx *ctx, int fd, const char *path, pi_frame *f, char *err)
         return -1;
     }
     f->decode_ms = pi_now_ms() - t0;
+    ctx->frame_bytes = f->stride * (size_t)f->height;
     return 0;
 }
 

@@ -1,6 +1,9 @@
 /* server.c -- the daemon: a line protocol over a Unix or loopback TCP socket,
- * and continuous capture. One thread; everything waits in poll(2), so an
- * idle daemon uses no CPU. Protocol: docs/poseinfer.md. */
+ * and continuous capture. One event-loop thread owns the sockets and waits
+ * in poll(2) (with no timeout when no client is connected, so an idle
+ * daemon uses no CPU); frames and model loads go to worker threads
+ * (pool.c), so one slow frame holds only its own client. Protocol and
+ * limits: docs/poseinfer.md. */
 #define _GNU_SOURCE
 #include "server.h"
 
@@ -8,6 +11,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <grp.h>
+#include <malloc.h>
 #include <math.h>
 #include <netinet/in.h>
 #include <poll.h>
@@ -23,8 +27,8 @@
 #include <unistd.h>
 
 #include "internal.h"
+#include "pool.h"
 
-#define MAX_CLIENTS 64
 #define MAX_LINE 4096
 #define MAX_OUT (1024 * 1024)
 
@@ -143,10 +147,15 @@ void error_json(sbuf *s, const char *key, const char *name, const char *msg)
 
 static void record(app *a, int ok, double ms)
 {
-    if (!ok) { a->errors++; return; }
-    a->frames++;
-    a->lat[a->nlat % LAT_WINDOW] = ms;
-    a->nlat++;
+    pthread_mutex_lock(&a->lock);
+    if (!ok) {
+        a->errors++;
+    } else {
+        a->frames++;
+        a->lat[a->nlat % LAT_WINDOW] = ms;
+        a->nlat++;
+    }
+    pthread_mutex_unlock(&a->lock);
 }
 
 static int cmp_double(const void *x, const void *y)
@@ -172,16 +181,27 @@ double app_percentile(const app *a, double pct)
 int app_reload(app *a, char *err)
 {
     pi_options o;
-    pi_ctx *n;
+    pi_ctx *n, *old;
+    pthread_mutex_lock(&a->reload_lock);
     pi_options_init(&o);
     o.intra_threads = a->cfg->threads;
     o.warmup_runs = a->cfg->warmup;
     o.max_pixels = a->cfg->max_pixels;
     n = pi_open(a->cfg->model, &o, err);
-    if (!n) return -1;
-    pi_close(a->ctx);
+    if (!n) {
+        pthread_mutex_unlock(&a->reload_lock);
+        return -1;
+    }
+    /* Workers still on the old model finish their frame with it: a clone
+     * keeps the session alive (pi_clone), and they re-clone when gen moves. */
+    pthread_mutex_lock(&a->lock);
+    old = a->ctx;
     a->ctx = n;
+    a->gen++;
     a->reloads++;
+    pthread_mutex_unlock(&a->lock);
+    pi_close(old);
+    pthread_mutex_unlock(&a->reload_lock);
     return 0;
 }
 
@@ -195,39 +215,120 @@ static const char *skip_space(const char *s)
 
 #define COMMANDS "commands: ping, infer PATH, frame N, grab, stats, reload, auth TOKEN, quit"
 
-void proto_frame(app *a, const unsigned char *buf, size_t len, sbuf *out)
+static job *job_new(job_kind kind)
 {
+    job *j = calloc(1, sizeof *j);
+    if (j) {
+        j->kind = kind;
+        j->client = -1;
+        sb_init(&j->out);
+    }
+    return j;
+}
+
+/* The members of a result after ours: {"bytes": N, "x": ...}. */
+static void result_after(sbuf *out, const pi_result *r)
+{
+    sbuf t;
+    sb_init(&t);
+    result_json(&t, NULL, NULL, r, 1);
+    sb_puts(out, t.buf ? t.buf + 1 : "}");
+    sb_free(&t);
+}
+
+void proto_run(app *a, pi_ctx *ctx, job *j)
+{
+    static const access_policy none;
     char err[PI_ERR_LEN];
     pi_result r;
-    sb_printf(out, "{\"bytes\": %zu, ", len);
-    if (!a->ctx) {
-        sb_puts(out, "\"error\": \"no model loaded\"}");
-    } else if (pi_infer_memory(a->ctx, buf, len, &r, err) < 0) {
-        record(a, 0, 0);
-        sb_puts(out, "\"error\": ");
-        sb_json_str(out, err);
-        sb_puts(out, "}");
-    } else {
-        sbuf t;
-        record(a, 1, r.total_ms);
-        sb_init(&t);
-        result_json(&t, NULL, NULL, &r, 1); /* its members after ours */
-        sb_puts(out, t.buf ? t.buf + 1 : "}");
-        sb_free(&t);
+    sbuf *out = &j->out;
+    int fd;
+    switch (j->kind) {
+    case JOB_INFER:
+        if (!ctx) {
+            error_json(out, "file", j->arg, "no model loaded");
+        } else if ((fd = access_open(a->acc ? a->acc : &none, j->arg, err)) < 0 ||
+                   pi_infer_fd(ctx, fd, j->arg, &r, err) < 0) {
+            record(a, 0, 0);
+            error_json(out, "file", j->arg, err);
+        } else {
+            record(a, 1, r.total_ms);
+            result_json(out, "file", j->arg, &r, 1);
+        }
+        break;
+    case JOB_FRAME:
+        sb_printf(out, "{\"bytes\": %zu, ", j->len);
+        if (!j->img) {
+            sb_puts(out, "\"error\": \"frame: busy, too many image bytes on their way at once; try again\"}");
+        } else if (!ctx) {
+            sb_puts(out, "\"error\": \"no model loaded\"}");
+        } else if (pi_infer_memory(ctx, j->img, j->len, &r, err) < 0) {
+            record(a, 0, 0);
+            sb_puts(out, "\"error\": ");
+            sb_json_str(out, err);
+            sb_puts(out, "}");
+        } else {
+            record(a, 1, r.total_ms);
+            result_after(out, &r);
+        }
+        break;
+    case JOB_GRAB:
+        pthread_mutex_lock(&a->cam_lock); /* the frame belongs to the camera until the next grab */
+        if (!ctx) {
+            error_json(out, "camera", a->cfg->camera, "no model loaded");
+        } else if (pi_infer_camera(ctx, a->cam, &r, err) < 0) {
+            record(a, 0, 0);
+            error_json(out, "camera", a->cfg->camera, err);
+        } else {
+            record(a, 1, r.total_ms);
+            result_json(out, "camera", a->cfg->camera, &r, 1);
+        }
+        pthread_mutex_unlock(&a->cam_lock);
+        break;
+    case JOB_RELOAD:
+        if (app_reload(a, err) < 0) {
+            j->failed = 1;
+            if (!j->arg) j->arg = strdup(err); /* for the log line of a SIGHUP */
+            error_json(out, NULL, NULL, err);
+        } else {
+            sb_puts(out, "{\"reloaded\": true}");
+        }
+        break;
     }
     sb_puts(out, "\n");
 }
 
+/* Hand work to a worker (p->job), or, without a peer (tests), do it now. */
+static int to_worker(app *a, peer *p, job *j, sbuf *out)
+{
+    if (!j) {
+        error_json(out, NULL, NULL, "out of memory");
+        sb_puts(out, "\n");
+        return 0;
+    }
+    if (p) {
+        p->job = j;
+        return 3;
+    }
+    proto_run(a, a->ctx, j);
+    sb_puts(out, j->out.buf ? j->out.buf : "");
+    job_free(j);
+    return 0;
+}
+
 int proto_handle(app *a, peer *p, const char *line, sbuf *out)
 {
-    static const peer nobody = {-1, 0, 0};
+    static const peer nobody = {-1, 0, 0, NULL};
     char err[PI_ERR_LEN];
-    pi_result r;
     const char *arg;
     size_t cmdlen;
     const peer *who = p ? p : &nobody;
+    int have_model;
 
+    pthread_mutex_lock(&a->lock);
     a->requests++;
+    have_model = a->ctx != NULL;
+    pthread_mutex_unlock(&a->lock);
     line = skip_space(line);
     cmdlen = strcspn(line, " \t");
     arg = skip_space(line + cmdlen);
@@ -256,19 +357,15 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
             sb_puts(out, "{\"auth\": true}");
         }
     } else if (IS("infer")) {
-        static const access_policy none;
-        int fd;
+        job *j;
         if (!*arg) {
             error_json(out, NULL, NULL, "infer: expected a path");
-        } else if (!a->ctx) {
+        } else if (!have_model) {
             error_json(out, "file", arg, "no model loaded");
-        } else if ((fd = access_open(a->acc ? a->acc : &none, arg, err)) < 0 ||
-                   pi_infer_fd(a->ctx, fd, arg, &r, err) < 0) {
-            record(a, 0, 0);
-            error_json(out, "file", arg, err);
         } else {
-            record(a, 1, r.total_ms);
-            result_json(out, "file", arg, &r, 1);
+            j = job_new(JOB_INFER);
+            if (j && !(j->arg = strdup(arg))) { job_free(j); j = NULL; }
+            return to_worker(a, p, j, out);
         }
     } else if (IS("frame")) {
         char *end;
@@ -288,28 +385,23 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
         if (p) p->want = (size_t)n;
         return p ? 2 : 1;
     } else if (IS("grab")) {
-        if (!a->cam) {
-            error_json(out, NULL, NULL, "grab: no camera (start with --camera SPEC)");
-        } else if (!a->ctx) {
-            error_json(out, NULL, NULL, "no model loaded");
-        } else if (pi_infer_camera(a->ctx, a->cam, &r, err) < 0) {
-            record(a, 0, 0);
-            error_json(out, "camera", a->cfg->camera, err);
-        } else {
-            record(a, 1, r.total_ms);
-            result_json(out, "camera", a->cfg->camera, &r, 1);
-        }
+        if (!a->cam) error_json(out, NULL, NULL, "grab: no camera (start with --camera SPEC)");
+        else if (!have_model) error_json(out, NULL, NULL, "no model loaded");
+        else return to_worker(a, p, job_new(JOB_GRAB), out);
     } else if (IS("stats")) {
+        pthread_mutex_lock(&a->lock);
         sb_puts(out, "{\"model\": ");
         sb_json_str(out, a->cfg->model);
         sb_printf(out, ", \"uptime_s\": %.1f, \"requests\": %lu, \"frames\": %lu, \"errors\": %lu, "
-                       "\"reloads\": %lu, \"clients\": %d, \"ms_p50\": ",
+                       "\"reloads\": %lu, \"clients\": %d, \"workers\": %d, \"busy_refusals\": %lu, "
+                       "\"idle_closed\": %lu, \"ms_p50\": ",
                   (pi_now_ms() - a->started_ms) / 1000.0, a->requests, a->frames, a->errors,
-                  a->reloads, a->clients);
+                  a->reloads, a->clients, a->workers, a->busy_refusals, a->idle_closed);
         sb_json_num(out, app_percentile(a, 50), 3);
         sb_puts(out, ", \"ms_p99\": ");
         sb_json_num(out, app_percentile(a, 99), 3);
         sb_puts(out, "}");
+        pthread_mutex_unlock(&a->lock);
     } else if (IS("reload")) {
         /* Loading a model stalls the daemon; only its own user (or root)
          * may ask, over the unix: socket; others have SIGHUP. */
@@ -317,10 +409,8 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
             snprintf(err, sizeof err, "reload: only the daemon's user (uid %ld) may reload, over the unix: "
                      "socket, or with SIGHUP (systemctl reload poseinfer)", (long)geteuid());
             error_json(out, NULL, NULL, err);
-        } else if (app_reload(a, err) < 0) {
-            error_json(out, NULL, NULL, err);
         } else {
-            sb_puts(out, "{\"reloaded\": true}");
+            return to_worker(a, p, job_new(JOB_RELOAD), out);
         }
     } else if (IS("quit")) {
         sb_puts(out, "{\"bye\": true}\n");
@@ -464,24 +554,44 @@ fail:
 
 typedef struct client {
     int fd;
+    unsigned long serial;    /* which connection holds this slot */
     peer who;
     char in[MAX_LINE];
     size_t inlen;
-    unsigned char *img;   /* the image of a "frame N" request, who.want bytes */
+    unsigned char *img;      /* "frame N": the image coming in (NULL: over budget, discarded) */
     size_t imglen;
+    size_t reserved;         /* image bytes counted against the server's budget */
     sbuf out;
     size_t outoff;
-    int closing;
+    int closing;             /* close once the replies are out */
+    int eof;                 /* the client sends no more */
+    int busy;                /* a job of its is with the workers */
+    double last;             /* ms: connected, or its last request came or was answered */
 } client;
 
-static void client_close(app *a, client *c)
+typedef struct server {
+    app *a;
+    pool *pool;
+    client *cl;
+    int max;                 /* max_clients */
+    int idle_ms;             /* idle_timeout_ms */
+    unsigned long serial;
+    size_t img_bytes;        /* image bytes received or waiting for a worker */
+    size_t img_budget;
+} server;
+
+static void client_close(server *s, client *c)
 {
     close(c->fd);
     sb_free(&c->out);
     free(c->img);
     c->img = NULL;
+    s->img_bytes -= c->reserved;
+    c->reserved = 0;
     c->fd = -1;
-    a->clients--;
+    pthread_mutex_lock(&s->a->lock);
+    s->a->clients--;
+    pthread_mutex_unlock(&s->a->lock);
 }
 
 /* Write what can be written now; -1 when the client is gone. */
@@ -499,34 +609,70 @@ static int client_flush(client *c)
     return 0;
 }
 
-/* Bytes of a "frame N" image: take what is buffered, then answer when all
- * have come. */
-static void client_image(app *a, client *c, const char *data, size_t n)
+static void submit(server *s, client *c, job *j)
 {
-    if (n > c->who.want - c->imglen) n = c->who.want - c->imglen;
-    if (n) memcpy(c->img + c->imglen, data, n);
-    c->imglen += n;
-    if (c->imglen == c->who.want) {
-        proto_frame(a, c->img, c->imglen, &c->out);
-        free(c->img);
-        c->img = NULL;
-        c->imglen = 0;
-        c->who.want = 0;
+    j->client = (int)(c - s->cl);
+    j->serial = c->serial;
+    c->busy = 1;
+    pool_submit(s->pool, j);
+}
+
+/* All N bytes of a "frame N" image are in: a job for a worker. */
+static void image_complete(server *s, client *c)
+{
+    job *j = calloc(1, sizeof *j);
+    if (!j) {
+        error_json(&c->out, NULL, NULL, "frame: out of memory");
+        sb_puts(&c->out, "\n");
+        c->closing = 1;
+        return;
+    }
+    j->kind = JOB_FRAME;
+    j->img = c->img; /* NULL when discarded: the worker answers "busy" */
+    j->len = c->who.want;
+    sb_init(&j->out);
+    c->img = NULL;
+    c->imglen = 0;
+    c->who.want = 0;
+    submit(s, c, j);
+}
+
+/* A "frame N" line: room for the image, or (over the budget of image bytes
+ * in flight) read and drop it, then answer "busy". */
+static void image_start(server *s, client *c)
+{
+    size_t n = c->who.want;
+    c->imglen = 0;
+    c->img = NULL;
+    if (s->img_bytes + n <= s->img_budget && (c->img = malloc(n))) {
+        c->reserved = n;
+        s->img_bytes += n;
     }
 }
 
-/* Answer the complete lines in c->in (and feed images). */
-static void client_lines(app *a, client *c)
+/* Image bytes: kept (or dropped when discarded). */
+static void image_bytes(server *s, client *c, const char *data, size_t n)
 {
-    for (;;) {
+    if (c->img && n) memcpy(c->img + c->imglen, data, n);
+    c->imglen += n;
+    if (c->imglen == c->who.want) image_complete(s, c);
+}
+
+/* Answer the complete lines in c->in, one request at a time: stops while a
+ * job of the client is with the workers (answers stay in order). */
+static void client_lines(server *s, client *c)
+{
+    while (!c->busy && !c->closing) {
         char *nl;
         size_t n;
-        if (c->who.want) { /* an image is coming: buffered bytes are its first */
-            size_t take = c->inlen < c->who.want - c->imglen ? c->inlen : c->who.want - c->imglen;
-            client_image(a, c, c->in, take);
+        int rc;
+        if (c->who.want) { /* buffered bytes are the image's first */
+            size_t take = c->who.want - c->imglen;
+            if (take > c->inlen) take = c->inlen;
+            if (take == 0) return;
+            image_bytes(s, c, c->in, take);
             memmove(c->in, c->in + take, c->inlen - take);
             c->inlen -= take;
-            if (c->who.want) return;
             continue;
         }
         nl = memchr(c->in, '\n', c->inlen);
@@ -534,61 +680,71 @@ static void client_lines(app *a, client *c)
         *nl = '\0';
         n = (size_t)(nl - c->in) + 1;
         if (nl > c->in && nl[-1] == '\r') nl[-1] = '\0';
-        if (c->closing) {
-        } else if (memchr(c->in, '\0', n - 1)) {
+        c->last = pi_now_ms();
+        if (memchr(c->in, '\0', n - 1)) {
             /* a C string would end there: "infer /a\0junk" must not open /a */
             error_json(&c->out, NULL, NULL, "request contains a NUL byte");
             sb_puts(&c->out, "\n");
+            rc = 0;
         } else {
-            int rc = proto_handle(a, &c->who, c->in, &c->out);
-            if (rc == 1) c->closing = 1;
-            if (rc == 2) {
-                c->img = malloc(c->who.want);
-                c->imglen = 0;
-                if (!c->img) {
-                    error_json(&c->out, NULL, NULL, "frame: out of memory");
-                    sb_puts(&c->out, "\n");
-                    c->who.want = 0;
-                    c->closing = 1;
-                }
-            }
+            rc = proto_handle(s->a, &c->who, c->in, &c->out);
         }
         memmove(c->in, c->in + n, c->inlen - n);
         c->inlen -= n;
+        if (rc == 1) c->closing = 1;
+        else if (rc == 2) image_start(s, c);
+        else if (rc == 3) {
+            job *j = c->who.job;
+            c->who.job = NULL;
+            submit(s, c, j);
+        }
     }
 }
 
-/* Read and answer complete lines; -1 when the client is to be dropped. */
-static int client_read(app *a, client *c)
+/* Read what is there and answer complete lines; -1 when the client is to be
+ * dropped. Reads nothing while a job of the client is with the workers. */
+static int client_read(server *s, client *c)
 {
-    for (;;) {
+    while (!c->busy && !c->closing && !c->eof) {
         ssize_t r;
         if (c->who.want && c->inlen == 0) { /* straight into the image */
-            r = recv(c->fd, c->img + c->imglen, c->who.want - c->imglen, 0);
+            char scratch[16384];
+            size_t room = c->who.want - c->imglen;
+            if (c->img) r = recv(c->fd, c->img + c->imglen, room, 0);
+            else r = recv(c->fd, scratch, room < sizeof scratch ? room : sizeof scratch, 0);
             if (r > 0) {
                 c->imglen += (size_t)r;
-                if (c->imglen == c->who.want) client_image(a, c, NULL, 0);
-                continue;
+                if (c->imglen == c->who.want) image_complete(s, c);
+                client_lines(s, c);
             }
         } else {
             r = recv(c->fd, c->in + c->inlen, sizeof c->in - c->inlen, 0);
             if (r > 0) {
                 c->inlen += (size_t)r;
-                client_lines(a, c);
+                client_lines(s, c);
             }
         }
+        if (r == 0) { c->eof = 1; break; }
         if (r < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) break;
         if (r < 0 && errno == EINTR) continue;
-        if (r <= 0) return -1;
-        if (c->inlen == sizeof c->in && !c->who.want) {
+        if (r < 0) return -1;
+        if (c->inlen == sizeof c->in && !c->who.want && !c->busy) {
             error_json(&c->out, NULL, NULL, "line too long");
             sb_puts(&c->out, "\n");
             c->closing = 1;
-            break;
         }
         if (c->out.len > MAX_OUT || c->out.oom) return -1; /* a client that never reads */
     }
     return 0;
+}
+
+/* Flush, and close when it is over: told to close, or the client sent no
+ * more and everything it asked is answered. */
+static void client_settle(server *s, client *c)
+{
+    if (client_flush(c) < 0) { client_close(s, c); return; }
+    if (c->busy || c->out.len) return;
+    if (c->closing || (c->eof && !c->who.want)) client_close(s, c);
 }
 
 /* Sleep up to ms, waking early on a signal. */
@@ -599,84 +755,198 @@ static void nap(int ms)
     if (poll(&p, 1, ms) > 0) drain_sig_pipe();
 }
 
+/* A new connection; over max_clients it gets an error line, not silence. */
+static void accept_one(server *s, int lfd, int unix_sock)
+{
+    int fd = accept4(lfd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+    if (fd < 0) {
+        /* Out of descriptors: the pending connection stays and poll would
+         * report it at once; do not spin on it. */
+        if (errno == EMFILE || errno == ENFILE) {
+            log_msg("accept: %s", strerror(errno));
+            nap(100);
+        }
+        return;
+    }
+    for (int i = 0; i < s->max; i++) {
+        client *c = &s->cl[i];
+        if (c->fd >= 0) continue;
+        memset(c, 0, sizeof *c);
+        c->fd = fd;
+        c->serial = ++s->serial;
+        c->who.uid = unix_sock ? access_peer_uid(fd) : -1;
+        c->last = pi_now_ms();
+        sb_init(&c->out);
+        pthread_mutex_lock(&s->a->lock);
+        s->a->clients++;
+        pthread_mutex_unlock(&s->a->lock);
+        return;
+    }
+    {
+        char msg[160];
+        int n = snprintf(msg, sizeof msg, "{\"error\": \"busy: %d clients connected, the limit (max_clients); "
+                                          "try again later\"}\n", s->max);
+        ssize_t w = send(fd, msg, (size_t)n, MSG_NOSIGNAL | MSG_DONTWAIT); /* best effort */
+        (void)w;
+        close(fd);
+        pthread_mutex_lock(&s->a->lock);
+        s->a->busy_refusals++;
+        pthread_mutex_unlock(&s->a->lock);
+    }
+}
+
+/* Replies of finished jobs go to their clients (if still connected), whose
+ * next buffered requests then go on. */
+static void jobs_done(server *s)
+{
+    job *j = pool_done(s->pool), *next;
+    for (; j; j = next) {
+        next = j->next;
+        if (j->client < 0) { /* SIGHUP */
+            if (j->failed) log_msg("SIGHUP: reload failed, keeping the old model: %s", j->arg ? j->arg : "");
+            else log_msg("SIGHUP: reloaded %s", s->a->cfg->model);
+        } else {
+            client *c = &s->cl[j->client];
+            if (c->fd >= 0 && c->serial == j->serial) {
+                sb_puts(&c->out, j->out.buf ? j->out.buf : "{\"error\": \"out of memory\"}\n");
+                c->busy = 0;
+                c->last = pi_now_ms();
+                s->img_bytes -= c->reserved;
+                c->reserved = 0;
+                client_lines(s, c);
+                client_settle(s, c);
+            }
+        }
+        job_free(j);
+    }
+}
+
+/* Close clients idle for idle_ms (no request, or one that never completes:
+ * a line or an image sent a byte at a time counts as idle). */
+static int close_idle(server *s, double now)
+{
+    int wait = -1;
+    for (int i = 0; i < s->max; i++) {
+        client *c = &s->cl[i];
+        double left;
+        if (c->fd < 0 || c->busy) continue;
+        left = c->last + s->idle_ms - now;
+        if (left <= 0) {
+            sb_printf(&c->out, "{\"error\": \"idle for %d ms (idle_timeout_ms); closing\"}\n", s->idle_ms);
+            client_flush(c);
+            client_close(s, c);
+            pthread_mutex_lock(&s->a->lock);
+            s->a->idle_closed++;
+            pthread_mutex_unlock(&s->a->lock);
+            continue;
+        }
+        if (wait < 0 || left + 1 < wait) wait = (int)left + 1;
+    }
+    return wait;
+}
+
+static void server_free(server *s, const char *spec)
+{
+    pool_stop(s->pool); /* the workers finish the frames they are on */
+    s->pool = NULL;
+    for (int i = 0; s->cl && i < s->max; i++)
+        if (s->cl[i].fd >= 0) client_close(s, &s->cl[i]);
+    free(s->cl);
+    if (strncmp(spec, "unix:", 5) == 0) unlink(spec + 5);
+}
+
 int server_run(app *a, int lfd, const char *spec, char *err)
 {
-    client cl[MAX_CLIENTS];
-    struct pollfd pfd[MAX_CLIENTS + 2];
-    int idx[MAX_CLIENTS + 2];
+    server s;
+    struct pollfd *pfd;
+    int *idx;
     const int unix_sock = strncmp(spec, "unix:", 5) == 0;
-    for (int i = 0; i < MAX_CLIENTS; i++) cl[i].fd = -1;
+    int rc = 0;
+
+    memset(&s, 0, sizeof s);
+    s.a = a;
+    s.max = a->cfg->max_clients > 0 ? a->cfg->max_clients : 64;
+    s.idle_ms = a->cfg->idle_timeout_ms > 0 ? a->cfg->idle_timeout_ms : 60000;
+    s.img_budget = (size_t)pi_max_file_bytes * 4;
+    a->workers = a->cfg->workers > 0 ? a->cfg->workers : 1;
+    /* Large buffers straight from mmap, so that freeing one gives it back
+     * (glibc's default threshold grows after the first large free, and the
+     * heap then keeps such a frame's memory). */
+    mallopt(M_MMAP_THRESHOLD, 4 * 1024 * 1024);
+    s.cl = calloc((size_t)s.max, sizeof *s.cl);
+    pfd = calloc((size_t)s.max + 3, sizeof *pfd);
+    idx = calloc((size_t)s.max + 3, sizeof *idx);
+    if (!s.cl || !pfd || !idx) {
+        pi_seterr(err, "server: out of memory");
+        free(pfd);
+        free(idx);
+        free(s.cl);
+        return -1;
+    }
+    for (int i = 0; i < s.max; i++) s.cl[i].fd = -1;
+    s.pool = pool_start(a, a->workers, err);
+    if (!s.pool) {
+        free(pfd);
+        free(idx);
+        free(s.cl);
+        return -1;
+    }
 
     while (!got_stop) {
-        int n = 0, r;
+        int n = 0, r, wait;
+        wait = close_idle(&s, pi_now_ms());
         pfd[n].fd = sig_pipe[0]; pfd[n].events = POLLIN; idx[n++] = -1;
-        pfd[n].fd = lfd; pfd[n].events = a->clients < MAX_CLIENTS ? POLLIN : 0; idx[n++] = -2;
-        for (int i = 0; i < MAX_CLIENTS; i++) {
-            if (cl[i].fd < 0) continue;
-            pfd[n].fd = cl[i].fd;
-            pfd[n].events = (short)(POLLIN | (cl[i].out.len > cl[i].outoff ? POLLOUT : 0));
+        pfd[n].fd = lfd; pfd[n].events = POLLIN; idx[n++] = -2;
+        pfd[n].fd = pool_fd(s.pool); pfd[n].events = POLLIN; idx[n++] = -3;
+        for (int i = 0; i < s.max; i++) {
+            client *c = &s.cl[i];
+            if (c->fd < 0) continue;
+            pfd[n].fd = c->fd;
+            pfd[n].events = (short)((!c->busy && !c->closing && !c->eof ? POLLIN : 0) |
+                                    (c->out.len > c->outoff ? POLLOUT : 0));
             idx[n++] = i;
         }
-        r = poll(pfd, (nfds_t)n, -1); /* no timeout: idle means asleep */
+        r = poll(pfd, (nfds_t)n, wait); /* no client: no timeout, idle means asleep */
         if (r < 0 && errno == EINTR) continue;
-        if (r < 0) { pi_seterr(err, "poll: %s", strerror(errno)); goto fail; }
+        if (r < 0) { pi_seterr(err, "poll: %s", strerror(errno)); rc = -1; break; }
         for (int k = 0; k < n; k++) {
             if (!pfd[k].revents) continue;
             if (idx[k] == -1) {
                 drain_sig_pipe();
             } else if (idx[k] == -2) {
-                int fd = accept4(lfd, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
-                if (fd < 0) {
-                    /* Out of descriptors: the pending connection stays and
-                     * poll would report it at once; do not spin on it. */
-                    if (errno == EMFILE || errno == ENFILE) {
-                        log_msg("accept: %s", strerror(errno));
-                        nap(100);
-                    }
+                for (int m = 0; m < 16; m++) accept_one(&s, lfd, unix_sock);
+            } else if (idx[k] == -3) {
+                jobs_done(&s);
+            } else {
+                client *c = &s.cl[idx[k]];
+                if (c->fd < 0) continue;
+                if (pfd[k].revents & (POLLHUP | POLLERR)) { /* gone: no one to answer */
+                    client_close(&s, c);
                     continue;
                 }
-                for (int i = 0; i < MAX_CLIENTS; i++) {
-                    if (cl[i].fd >= 0) continue;
-                    cl[i].fd = fd;
-                    cl[i].who.uid = unix_sock ? access_peer_uid(fd) : -1;
-                    cl[i].who.authed = 0;
-                    cl[i].who.want = 0;
-                    cl[i].img = NULL;
-                    cl[i].imglen = 0;
-                    cl[i].inlen = 0;
-                    cl[i].outoff = 0;
-                    cl[i].closing = 0;
-                    sb_init(&cl[i].out);
-                    a->clients++;
-                    fd = -1;
-                    break;
+                if ((pfd[k].revents & POLLIN) && client_read(&s, c) < 0) {
+                    client_close(&s, c);
+                    continue;
                 }
-                if (fd >= 0) close(fd);
-            } else {
-                client *c = &cl[idx[k]];
-                int drop = 0;
-                if (pfd[k].revents & (POLLIN | POLLHUP | POLLERR)) drop = client_read(a, c) < 0;
-                if (!drop) drop = client_flush(c) < 0;
-                if (!drop && c->closing && c->out.len == 0) drop = 1;
-                if (drop) client_close(a, c);
+                client_settle(&s, c);
             }
         }
         if (got_hup) {
+            job *j = calloc(1, sizeof *j);
             got_hup = 0;
-            if (app_reload(a, err) < 0) log_msg("SIGHUP: reload failed, keeping the old model: %s", err);
-            else log_msg("SIGHUP: reloaded %s", a->cfg->model);
+            if (j) {
+                j->kind = JOB_RELOAD;
+                j->client = -1;
+                sb_init(&j->out);
+                pool_submit(s.pool, j);
+            }
         }
     }
     log_msg("stopping");
-    for (int i = 0; i < MAX_CLIENTS; i++)
-        if (cl[i].fd >= 0) client_close(a, &cl[i]);
-    if (strncmp(spec, "unix:", 5) == 0) unlink(spec + 5);
-    return 0;
-fail:
-    for (int i = 0; i < MAX_CLIENTS; i++)
-        if (cl[i].fd >= 0) client_close(a, &cl[i]);
-    if (strncmp(spec, "unix:", 5) == 0) unlink(spec + 5);
-    return -1;
+    server_free(&s, spec);
+    free(pfd);
+    free(idx);
+    return rc;
 }
 
 int continuous_run(app *a, char *err)

@@ -459,3 +459,126 @@ def test_reload_only_from_the_owner(daemon, models, tmp_path):
         assert d.stop() == 0
     finally:
         shutil.rmtree(sockdir, ignore_errors=True)
+
+
+def rss_kib(pid):
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+def test_idle_clients_are_closed(daemon, models, tmp_path):
+    """A client with no complete request for idle_timeout_ms is told and
+    closed; a line sent a byte at a time does not keep it open."""
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--idle-timeout-ms", "400")
+    idle = RawClient(d)
+    slow = RawClient(d)
+    t0 = time.time()
+    for ch in b"pin":  # never a whole line
+        slow.write(bytes([ch]))
+        time.sleep(0.15)
+    r = json.loads(idle.readline())
+    assert "idle" in r["error"] and "idle_timeout_ms" in r["error"]
+    assert idle.readline() == b""
+    assert "idle" in json.loads(slow.readline())["error"]
+    assert time.time() - t0 < 5 * d.scale
+    f = d.connect()  # a busy client is never idle for long
+    for _ in range(4):
+        assert ask(f, "ping") == {"pong": True}
+        time.sleep(0.2)
+    assert ask(f, "stats")["idle_closed"] == 2
+    assert d.stop() == 0
+
+
+def test_client_limit_answers_with_an_error(daemon, models, tmp_path):
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--max-clients", "2")
+    a, b = d.connect(), d.connect()
+    assert ask(a, "ping") == {"pong": True} and ask(b, "ping") == {"pong": True}
+    c = RawClient(d)
+    r = json.loads(c.readline())
+    assert "busy" in r["error"] and "max_clients" in r["error"]
+    assert c.readline() == b""
+    b.close()
+    deadline = time.time() + 10 * d.scale
+    while True:  # the slot comes free once the daemon has seen b go
+        f = RawClient(d)
+        f.write(b"ping\n")
+        line = json.loads(f.readline())
+        if line == {"pong": True}:
+            break
+        assert time.time() < deadline, line
+        time.sleep(0.05)
+    assert ask(a, "stats")["busy_refusals"] >= 1
+    assert d.stop() == 0
+
+
+def test_file_size_bound(run, daemon, models, frames, tmp_path):
+    """Files and frames over max_file_bytes are refused before they are read;
+    the default bound (64 MiB) is below what the decode bound would let in."""
+    big = tmp_path / "big.png"
+    with open(big, "wb") as f:
+        f.truncate(70 * 1024 * 1024)  # sparse: costs no disk
+    r = run("--model", models["good"], big, frames["good.png"])
+    assert r.rc == 1
+    assert "over the limit of 67108864" in r.lines[0]["error"] and "x" in r.lines[1]
+    r = run("--model", models["good"], "--max-file-bytes", "100000", frames["good.png"])
+    assert "over the limit of 100000" in r.lines[0]["error"]
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--allow-dir", tmp_path,
+               "--max-file-bytes", "100000")
+    f = RawClient(d)
+    f.write(f"infer {big}\n".encode())
+    assert "over the limit of 100000" in json.loads(f.readline())["error"]
+    f.write(b"frame 100001\n")
+    assert "max_file_bytes" in json.loads(f.readline())["error"]
+    assert d.stop() == 0
+
+
+def test_memory_is_given_back_after_a_large_frame(daemon, models, tmp_path):
+    """A 4000 x 4000 BMP (48 MB of file, 48 MB of pixels) is inferred;
+    afterwards, and after the next small frame, the daemon's resident memory
+    is back near where it was (it kept both buffers: +94 MiB, then +48 MiB)."""
+    if os.environ.get("PI_SANITIZED"):
+        pytest.skip("AddressSanitizer's allocator keeps freed memory in quarantine: RSS means nothing")
+    big = tmp_path / "big.bmp"
+    cv2.imwrite(str(big), sphere_frame(h=4000, w=4000, cx=2000, cy=2000, r=1500, noise=0))
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--allow-dir", tmp_path,
+               "--max-pixels", str(30_000_000))
+    f = d.connect()
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), sphere_frame(seed=3))
+    assert "error" not in ask(f, f"infer {small}")
+    before = rss_kib(d.proc.pid)
+    r = ask(f, f"infer {big}")
+    assert "error" not in r, r
+    after = rss_kib(d.proc.pid)
+    assert after - before < 30 * 1024, f"RSS {before} KiB before the large frame, {after} KiB after"
+    assert "error" not in ask(f, f"infer {small}")
+    again = rss_kib(d.proc.pid)
+    assert again - before < 30 * 1024, f"RSS {before} KiB before the large frame, {again} KiB after the next"
+    assert d.stop() == 0
+
+
+def test_a_slow_frame_holds_only_its_own_client(daemon, models, frames, frame_server, tmp_path, timeout_scale):
+    """A grab from a camera that never answers keeps one worker for its
+    timeout; other clients' frames are answered meanwhile, and the event loop
+    answers at once."""
+    srv = frame_server([sphere_frame(seed=30)], mode="silent")
+    d = daemon("--model", models["good"], "--serve", f"unix:{tmp_path / 'pi.sock'}", "--camera", f"unix:{srv.path}",
+               "--timeout-ms", str(int(4000 * timeout_scale)), "--workers", "2")
+    slow = d.connect()
+    slow.write("grab\nping\n")
+    slow.flush()
+    time.sleep(0.2)
+    t0 = time.time()
+    other = RawClient(d)
+    r = send_frame(other, frames["good.png"].read_bytes())
+    other.write(b"ping\n")
+    assert json.loads(other.readline()) == {"pong": True}
+    fast = time.time() - t0
+    assert "error" not in r
+    g = json.loads(slow.readline())
+    assert "timed out" in g["error"]
+    assert json.loads(slow.readline()) == {"pong": True}  # its own requests stay in order
+    assert fast < 2.0 * timeout_scale, f"another client waited {fast:.2f} s behind the slow grab"
+    assert d.stop() == 0
