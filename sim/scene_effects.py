@@ -88,7 +88,7 @@ def finish(rgba, background, im, principal):
     # remap blends at the outline) already carry their alpha.
     inv = cv2.cvtColor(255 - rgba[..., 3], cv2.COLOR_GRAY2RGB)
     x = cv2.multiply(background, inv, scale=1.0 / 255.0, dtype=cv2.CV_32F)
-    x = cv2.add(x, cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), dtype=cv2.CV_32F)
+    x += cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB).astype(np.float32)  # (cv2.add of mixed types: 8x slower)
     if im["defocus_px"] > 0.3:
         x = cv2.filter2D(x, -1, disc_kernel(im["defocus_px"]), borderType=cv2.BORDER_REFLECT)
     if im["motion_px"] > 0.5:
