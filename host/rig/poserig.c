@@ -387,6 +387,16 @@ static int measure_pose(const rig_args *a, rig_run *r, int i) {
     row->move_ms = now_ms() - t0;
     memcpy(row->mpos, r->st.last.mpos, sizeof(row->mpos));
     memcpy(row->wpos, r->st.last.wpos, sizeof(row->wpos));
+    /* A controller that restarted mid-run (a brown-out) may come back on
+     * default settings: the stage then no longer turns the angles asked. */
+    if (moved && r->st.defaults_restored && !a->allow_defaults) {
+        fprintf(stderr, "poserig: pose %d: the stage restarted on its default settings ('%s'): stopping\n", i,
+                r->st.restored_msg);
+        snprintf(row->status, sizeof(row->status), "the stage restarted on its default settings");
+        r->failed++;
+        r->stopped = "the stage restarted on its default settings (EEPROM CRC check failed)";
+        return POSE_STOP;
+    }
     if (!moved) {
         snprintf(row->status, sizeof(row->status), "%.*s", (int)sizeof(row->status) - 1,
                  stop_signal ? "interrupted" : err);

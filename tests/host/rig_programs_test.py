@@ -371,6 +371,23 @@ def test_poserig_refuses_default_settings(tmp_path, fake, camera, model):
     assert "warning" in r.stderr and "default settings" in r.stderr
 
 
+def test_poserig_stops_when_the_stage_comes_back_on_defaults(tmp_path, fake, camera, model):
+    """The controller says mid-run that it restored its defaults: the run stops, that pose failed."""
+    plan = tmp_path / "plan.csv"
+    plan.write_text("1,2,3\n4,5,6\n")
+    f = fake(BANNER + f"\npolls 1\nexpect G90 G0 X1 Y2 Z3\nsend ok\nexpect G4 P0\nsend {EEPROM_MSG}\n"
+                      "send ok\nend\n")
+    cam = camera([sphere_frame(1)])
+    out = tmp_path / "run"
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", model, "--plan", plan,
+                "--settle", 0, "--out", out)
+    assert r.returncode == 1, r.stderr
+    assert EEPROM_MSG in r.stderr and "default settings" in r.stderr
+    rows = read_rows(out)
+    assert len(rows) == 1 and "default settings" in rows[0]["status"]
+    assert cam.grabs == 0
+
+
 def test_poserig_refuses_alarm_without_home(tmp_path, fake, camera, model):
     f = fake(BANNER + "\nsend [MSG:'$H'|'$X' to unlock]\nstate <Alarm|MPos:0.000,0.000,0.000|FS:0,0>\nend\n")
     cam = camera([sphere_frame(1)])
