@@ -209,12 +209,16 @@ def cmd_dataset(args, argv):
                         sampling=args.sampling, seed=args.seed, background=_background(args),
                         lights=_load_lights(args.lights), randomization=_randomization(args), scene=scene)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
+    if args.ray_address and args.engine != "ray":
+        raise UsageError("--ray-address needs --engine ray")
     record = build(cfg, args.out, workers=args.workers, progress=not args.quiet,
-                   command=shlex.join(["sim"] + list(argv)), log=log)
+                   command=shlex.join(["sim"] + list(argv)), log=log, engine=args.engine,
+                   ray_address=args.ray_address)
     run = record["last_run"]
     log(f"dataset complete in {args.out}: " +
         ", ".join(f"{k} {v}" for k, v in record["counts"].items()) +
-        (f"; rendered {run['rendered']} frames at {run['frames_per_s']} frames/s on {run['workers']} workers"
+        (f"; rendered {run['rendered']} frames at {run['frames_per_s']} frames/s on {run['workers']} "
+         f"{'Ray CPUs' if args.engine == 'ray' else 'workers'}"
          if run["rendered"] else "; nothing left to render"))
     return 0
 
@@ -284,6 +288,12 @@ def get_args_parser():
                         "(any count, 3-decimal labels)")
     p.add_argument("--workers", type=_count, default=0, metavar="N",
                    help="worker processes, one renderer each (0: every core)")
+    p.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local: worker processes on this machine; ray: Ray tasks on a cluster "
+                        "(docs/cluster.md), the same frames byte for byte")
+    p.add_argument("--ray-address", metavar="ADDR",
+                   help="with --engine ray: the cluster to join, e.g. 10.0.0.1:6379 (default: RAY_ADDRESS, "
+                        "else a local Ray instance with --workers CPUs, started and stopped by this run)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     _add_randomization_args(p)
 
@@ -312,6 +322,7 @@ def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     args = get_args_parser().parse_args(argv)
     from sim.dataset import DatasetError
+    from sim.engine_ray import EngineError
     from sim.render import TextureError
     try:
         if args.command == "render":
@@ -322,6 +333,9 @@ def main(argv=None):
     except (CameraError, TextureError, DatasetError, UsageError, ValueError) as e:
         print(f"sim {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except EngineError as e:    # the cluster, not the arguments: frames written so far stay, rerun to resume
+        print(f"sim {args.command}: error: {e}; rerun the same command to resume", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"sim {args.command}: interrupted" +
               ("; rerun the same command to resume" if args.command == "dataset" else ""), file=sys.stderr)

@@ -295,8 +295,11 @@ def _pool_context():
     return multiprocessing.get_context("spawn")
 
 
-def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
+def build(cfg, out, *, workers=None, progress=True, command=None, log=print, engine="local", ray_address=None):
     """Render the dataset of `cfg` into folder `out`; only missing frames are rendered (resume).
+
+    engine: "local" (a pool of `workers` processes here) or "ray" (Ray tasks, sim/engine_ray.py: the
+    cluster at `ray_address` or RAY_ADDRESS, else a local instance of `workers` CPUs); same frames.
 
     Returns the record written to OUT/dataset.json.
     """
@@ -349,6 +352,7 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
     }
     _write_record(out, record)
 
+    requested_workers = workers
     workers = workers or len(os.sched_getaffinity(0))
     camera = cfg.scene.camera if getattr(cfg, "scene", None) is not None else cfg.camera   # the frames' size
     tasks, broken = _frames_to_render(poses, out, camera, workers)
@@ -368,7 +372,18 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
     committer = ThreadPoolExecutor(COMMIT_THREADS)
     commits = []
     try:
-        if workers == 1:
+        if engine == "ray":
+            from dataclasses import replace
+            from sim import engine_ray
+            # Workers may run elsewhere with another working directory: absolute paths only.
+            remote = [(i, os.path.abspath(p), pose) for i, p, pose in tasks]
+            key = hashlib.sha256(json.dumps([settings, os.path.abspath(out)], sort_keys=True).encode()).hexdigest()
+            workers = engine_ray.render(replace(cfg, texture=os.path.abspath(cfg.texture)), remote, key,
+                                        address=ray_address, workers=requested_workers,
+                                        on_frames=bar.update if bar else None, log=log) if tasks else 0
+        elif engine != "local":
+            raise DatasetError(f"unknown engine {engine!r} (choose local or ray)")
+        elif workers == 1:
             _worker_init(cfg, single_thread_gl=False)
             for tmp, path in map(_render_task, tasks):
                 commits.append(committer.submit(commit_temporary, tmp, path))
@@ -392,7 +407,8 @@ def build(cfg, out, *, workers=None, progress=True, command=None, log=print):
 
     record["complete"] = True
     record["finished_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-    record["last_run"] = {"rendered": len(tasks), "damaged_rendered_again": len(broken), "workers": workers,
+    record["last_run"] = {"rendered": len(tasks), "damaged_rendered_again": len(broken), "engine": engine,
+                          "workers": workers,
                           "seconds": round(elapsed, 3),
                           "frames_per_s": round(len(tasks) / elapsed, 2) if elapsed > 0 and tasks else None}
     _write_record(out, record)
