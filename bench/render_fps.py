@@ -8,6 +8,10 @@ frame rates and their ratio. The two runs happen in the same invocation, so
 their ratio holds even when the machine is shared and absolute numbers move.
 
     .venv/bin/python bench/render_fps.py [--texture PNG] [--frames N] [--workers N] [--json FILE]
+    .venv/bin/python bench/render_fps.py --scene sim/scenes/train.json ...   # the plain frames, then the scene's
+
+With --scene the same plan is also rendered with that rig scene (sim dataset
+--scene), 1 worker and N workers, in the same invocation as the plain frames.
 
 Without --texture it uses a synthetic 2048 x 1024 stand-in in the paper's
 colours (black, white, green, blue stripes and patches).
@@ -55,13 +59,14 @@ def cpu_model():
     return platform.processor() or "unknown"
 
 
-def run(texture, frames, workers, tmp):
+def run(texture, frames, workers, tmp, scene=None):
     counts = {"train": 1600, "val": 597, "test": 100, "test_offgrid": 100}
     # Keep the P1 proportions when only part of the plan is rendered.
     scale = min(1.0, frames / sum(counts.values()))
     counts = {k: int(round(v * scale)) for k, v in counts.items()}
-    out = os.path.join(tmp, f"w{workers}")
-    cfg = DatasetConfig(texture=texture, counts=counts)
+    out = os.path.join(tmp, f"w{workers}{'-scene' if scene else ''}")
+    cfg = (DatasetConfig(texture=texture, counts=counts) if scene is None
+           else DatasetConfig(texture=texture, counts=counts, camera=scene.camera, scene=scene))
     t0, c0 = time.perf_counter(), time.process_time()
     rec = build(cfg, out, workers=workers, progress=False, command="bench/render_fps.py", log=lambda *a: None)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -82,12 +87,20 @@ def main(argv=None):
     p.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)),
                    help="workers of the parallel run (default: every core)")
     p.add_argument("--json", help="also write the results to this JSON file")
+    p.add_argument("--scene", help="also render the plan with this rig scene file (sim dataset --scene)")
     args = p.parse_args(argv)
+    scene = None
+    if args.scene:
+        from sim.scene import load_scene
+        scene = load_scene(args.scene)
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory(prefix="render_fps-") as tmp:
         texture = args.texture or synthetic_texture(os.path.join(tmp, "synthetic.png"))
         one = run(texture, args.frames, 1, tmp)
         many = run(texture, args.frames, args.workers, tmp)
+        if scene is not None:
+            scene_one = run(texture, args.frames, 1, tmp, scene)
+            scene_many = run(texture, args.frames, args.workers, tmp, scene)
     result = {
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "nproc": os.cpu_count(), "cpu": cpu_model(),
@@ -103,6 +116,15 @@ def main(argv=None):
     print(f"  {many['workers']} workers: {many['frames_per_s']:7.1f} frames/s ({many['seconds']} s)")
     print(f"  speed-up : {result['speedup']:.2f}x (1-min load average before/after: "
           f"{result['load_average_1min'][0]} / {result['load_average_1min'][1]})")
+    if scene is not None:
+        result["scene"] = {"file": args.scene, "one_worker": scene_one, "parallel": scene_many}
+        print(f"  scene {args.scene}:")
+        print(f"  1 worker : {scene_one['frames_per_s']:7.1f} frames/s ({scene_one['seconds']} s; "
+              f"{scene_one['cpu_ms_per_frame']} ms CPU per frame)")
+        print(f"  {scene_many['workers']} workers: {scene_many['frames_per_s']:7.1f} frames/s "
+              f"({scene_many['seconds']} s); plain / scene: "
+              f"{many['frames_per_s'] / scene_many['frames_per_s']:.1f}x")
+        result["load_average_1min"][1] = round(os.getloadavg()[0], 2)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(result, f, indent=1)
