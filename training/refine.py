@@ -28,9 +28,11 @@ META_CONFIDENCE = "spherepose.confidence"
 # The algorithm's parameters: one source, copied into host/src/refine.h (a unit test compares).
 LEVELS = 3            # frame and texture pyramid levels, coarse to fine (2x2 box reductions)
 ITERS = (3, 2, 1)     # Gauss-Newton steps per level, coarse to fine
-STRIDES = (1, 1, 2)   # sample every STRIDE-th row and column of each level, coarse to fine
-RESIDUAL_LEVEL = 1    # the level whose pixels give the residual (0 finest)
+STRIDES = (2, 2, 4)   # sample every STRIDE-th row and column of each level, coarse to fine
+RESIDUAL_LEVEL = 1    # the level whose pixels give the residual (0 finest) ...
+RESIDUAL_STRIDE = 2   # ... every RESIDUAL_STRIDE-th row and column of it
 RHO_MAX = 0.92        # pixels used: centre within RHO_MAX * r of the circle's centre
+CROP_PAD = 4.0        # the frame's crop: the circle's square grown by CROP_PAD pixels
 TEXTURE_WIDTH = 1024  # texture width at the finest level (reduced from the model's by 2x2 boxes)
 DAMPING = 1e-3        # Levenberg-Marquardt: lambda * diag(J^T J) added to the normal equations
 MAX_STEP_DEG = 3.0    # a step that rotates more than this is scaled down to it
@@ -242,7 +244,7 @@ def frame_pyramid(frame, cx, cy, r):
     centre and radius to move) and its 2x2 reductions. Coordinates: continuous pixel
     coordinates of the level, origin at the crop's corner; scale: level pixels per frame pixel."""
     h, w = frame.shape[:2]
-    half = r * 1.25 + 2
+    half = r + CROP_PAD
     step = 1 << (LEVELS - 1)
     x0 = max(0, int(math.floor((cx - half) / step)) * step)
     y0 = max(0, int(math.floor((cy - half) / step)) * step)
@@ -273,16 +275,19 @@ def pixel_set(img, cx, cy, r, stride=1):
 
 # ---- photometric fit --------------------------------------------------------------------------
 
+def photometric_basis(t, n):
+    """The photometric model's columns for one channel: [t, t n_x, t n_y, t n_z, 1]."""
+    return np.stack([t, t * n[:, 0], t * n[:, 1], t * n[:, 2], np.ones(len(t))], axis=1)
+
+
 def photometric_fit(obs, val, n):
     """Per channel least squares of obs ~ val * (a0 + a.n) + b. Returns (model [N, 3],
     shade [N, 3] = the multiplier of val, sse, sst)."""
-    N = obs.shape[0]
     model = np.empty_like(obs)
     shade = np.empty_like(obs)
     sse = sst = 0.0
     for c in range(3):
-        t = val[:, c]
-        A = np.stack([t, t * n[:, 0], t * n[:, 1], t * n[:, 2], np.ones(N)], axis=1)
+        A = photometric_basis(val[:, c], n)
         AtA = A.T @ A
         Atb = A.T @ obs[:, c]
         coef = _solve_spd(AtA, Atb)
@@ -335,7 +340,21 @@ def _eval(tex, img, us, vs, obs, R, cx, cy, r, fixed_f, want_jac):
     jt = np.einsum("nck,pnk->ncp", gw, dn)                     # [N, 3 ch, 3]
     J = np.concatenate([jw, jt], axis=2) * shade[:, :, None]   # [N, 3, 6]
     e = obs - model
-    return sse, sst, J.reshape(-1, 6), e.reshape(-1)
+    # Normal equations of the variable-projection problem: the photometric coefficients are
+    # refitted at every pose, so a step is judged by what they cannot absorb; J's part that lies
+    # in the span of the photometric basis A is projected out (H = J^T J - J^T A (A^T A)^-1 A^T J;
+    # g = J^T e, e being orthogonal to A already). Without it, poses and circles that the shading
+    # can partly mimic converge slowly.
+    H = np.zeros((6, 6))
+    g = np.zeros(6)
+    for c in range(3):
+        Jc = J[:, c, :]
+        A = photometric_basis(val[:, c], n)
+        AtA = A.T @ A
+        JtA = Jc.T @ A
+        H += Jc.T @ Jc - JtA @ np.column_stack([_solve_spd(AtA, JtA[i]) for i in range(6)])
+        g += Jc.T @ e[:, c]
+    return sse, sst, H, g
 
 
 def residual_at(frame, circle, R, texture_pyr, camera_focal_px=None):
@@ -344,7 +363,7 @@ def residual_at(frame, circle, R, texture_pyr, camera_focal_px=None):
 
 
 def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, strides=STRIDES,
-           residual_level=RESIDUAL_LEVEL):
+           residual_level=RESIDUAL_LEVEL, residual_stride=RESIDUAL_STRIDE):
     """Refine the pose R0 (body to world) and the circle (cx, cy, r) (continuous coordinates
     of the undistorted frame, BGR uint8) against the texture pyramid. Returns a Result."""
     cx, cy, r = (float(v) for v in circle)
@@ -361,9 +380,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
         if len(us) < 50:
             continue
         for _ in range(iters[LEVELS - 1 - lev]):
-            sse, sst, J, e = _eval(tex, img, us, vs, obs, R, cx * s, cy * s, r * s, ff, True)
-            H = J.T @ J
-            g = J.T @ e
+            sse, sst, H, g = _eval(tex, img, us, vs, obs, R, cx * s, cy * s, r * s, ff, True)
             H[np.diag_indices(6)] *= 1.0 + DAMPING
             d = _solve_spd(H, g)
             ang = math.sqrt(float(d[:3] @ d[:3]))
@@ -377,7 +394,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
             total += 1
     s = 1.0 / (1 << residual_level)
     ff = camera_focal_px * s if camera_focal_px else None
-    us, vs, obs = pixel_set(fpyr[residual_level], cx * s, cy * s, r * s)
+    us, vs, obs = pixel_set(fpyr[residual_level], cx * s, cy * s, r * s, residual_stride)
     sse, sst, _, _ = _eval(texture_pyr[residual_level], fpyr[residual_level], us, vs, obs, R,
                            cx * s, cy * s, r * s, ff, False)
     res = sse / sst if sst > 0 else 1.0

@@ -22,7 +22,7 @@
 
 struct rf_texture {
     int w[RF_LEVELS], h[RF_LEVELS];
-    double *px[RF_LEVELS];          /* [h][w][3], BGR */
+    float *px[RF_LEVELS];           /* [h][w][3], BGR; exact (8-bit values / 4^k) */
 };
 
 /* Per sampled pixel: what the second pass of a step needs. */
@@ -34,9 +34,9 @@ typedef struct rf_pix {
 } rf_pix;
 
 struct rf_work {
-    double *lev[RF_LEVELS];         /* frame crop pyramid, [h][w][3] */
-    size_t cap[RF_LEVELS];
-    int w[RF_LEVELS], h[RF_LEVELS];
+    int w[RF_LEVELS], h[RF_LEVELS]; /* the crop's size at each level */
+    const rf_image *frame;          /* the frame, the crop's corner at (x0, y0) */
+    int x0, y0;
     rf_pix *pix;
     size_t pcap;
 };
@@ -125,16 +125,17 @@ bad:
 
 /* ---- pyramids ------------------------------------------------------------------ */
 
-/* 2x2 box reduction, in the order of training/refine.py's reduce2. */
-static void reduce2(const double *src, int w, int h, double *dst)
+/* 2x2 box reduction, in the order of training/refine.py's reduce2 (exact in
+ * float for the values it sees). */
+static void reduce2(const float *src, int w, int h, float *dst)
 {
     int w2 = w / 2, h2 = h / 2;
     for (int j = 0; j < h2; j++)
         for (int i = 0; i < w2; i++)
             for (int c = 0; c < 3; c++) {
-                const double *a = src + ((size_t)(2 * j) * w + 2 * i) * 3 + c;
-                const double *b = a + (size_t)w * 3;
-                dst[((size_t)j * w2 + i) * 3 + c] = ((a[0] + a[3]) + (b[0] + b[3])) * 0.25;
+                const float *a = src + ((size_t)(2 * j) * w + 2 * i) * 3 + c;
+                const float *b = a + (size_t)w * 3;
+                dst[((size_t)j * w2 + i) * 3 + c] = ((a[0] + a[3]) + (b[0] + b[3])) * 0.25f;
             }
 }
 
@@ -166,12 +167,16 @@ rf_texture *rf_texture_new(const rf_image *img, char *err)
         return NULL;
     }
     rf_texture *t = calloc(1, sizeof *t);
-    double *full = malloc((size_t)w * h * 3 * sizeof(double));
+    float *full = malloc((size_t)w * h * 3 * sizeof(float));
     if (!t || !full) goto oom;
     for (int j = 0; j < h; j++)
-        for (int i = 0; i < w; i++) load_px(img, i, j, full + ((size_t)j * w + i) * 3);
+        for (int i = 0; i < w; i++) {
+            double px[3];
+            load_px(img, i, j, px);
+            for (int c = 0; c < 3; c++) full[((size_t)j * w + i) * 3 + c] = (float)px[c];
+        }
     while (w > RF_TEXTURE_WIDTH) {
-        double *half = malloc((size_t)(w / 2) * (h / 2) * 3 * sizeof(double));
+        float *half = malloc((size_t)(w / 2) * (h / 2) * 3 * sizeof(float));
         if (!half) goto oom;
         reduce2(full, w, h, half);
         free(full);
@@ -186,7 +191,7 @@ rf_texture *rf_texture_new(const rf_image *img, char *err)
     for (int l = 1; l < RF_LEVELS; l++) {
         t->w[l] = t->w[l - 1] / 2;
         t->h[l] = t->h[l - 1] / 2;
-        t->px[l] = malloc((size_t)t->w[l] * t->h[l] * 3 * sizeof(double));
+        t->px[l] = malloc((size_t)t->w[l] * t->h[l] * 3 * sizeof(float));
         if (!t->px[l]) goto oom;
         reduce2(t->px[l - 1], t->w[l - 1], t->h[l - 1], t->px[l]);
     }
@@ -210,7 +215,6 @@ rf_work *rf_work_new(void) { return calloc(1, sizeof(rf_work)); }
 void rf_work_free(rf_work *w)
 {
     if (!w) return;
-    for (int l = 0; l < RF_LEVELS; l++) free(w->lev[l]);
     free(w->pix);
     free(w);
 }
@@ -225,10 +229,13 @@ static int grow(void **p, size_t *cap, size_t need)
     return 0;
 }
 
-/* The square around the circle and its reductions (training/refine.py frame_pyramid). */
-static int frame_pyramid(rf_work *w, const rf_image *f, double cx, double cy, double r, int *x0, int *y0)
+/* The square around the circle (training/refine.py frame_pyramid). Its
+ * levels are not built: a level-l pixel is the mean of a 2^l x 2^l block of
+ * the frame, summed where a sampled pixel needs it (sums of 8-bit values are
+ * exact in any order, so this equals the Python pyramid's values). */
+static int frame_crop(rf_work *w, const rf_image *f, double cx, double cy, double r, int *x0, int *y0)
 {
-    double half = r * 1.25 + 2;
+    double half = r + RF_CROP_PAD;
     int step = 1 << (RF_LEVELS - 1);
     int xa = (int)floor((cx - half) / step) * step, ya = (int)floor((cy - half) / step) * step;
     int xb = (int)ceil((cx + half) / step) * step, yb = (int)ceil((cy + half) / step) * step;
@@ -237,22 +244,36 @@ static int frame_pyramid(rf_work *w, const rf_image *f, double cx, double cy, do
     if (xb > f->width) xb = f->width;
     if (yb > f->height) yb = f->height;
     if (xb <= xa || yb <= ya) return -2;
-    int cw = xb - xa, ch = yb - ya;
-    if (grow((void **)&w->lev[0], &w->cap[0], (size_t)cw * ch * 3 * sizeof(double)) < 0) return -1;
-    for (int j = 0; j < ch; j++)
-        for (int i = 0; i < cw; i++) load_px(f, xa + i, ya + j, w->lev[0] + ((size_t)j * cw + i) * 3);
-    w->w[0] = cw;
-    w->h[0] = ch;
+    w->frame = f;
+    w->x0 = xa;
+    w->y0 = ya;
+    w->w[0] = xb - xa;
+    w->h[0] = yb - ya;
     for (int l = 1; l < RF_LEVELS; l++) {
         w->w[l] = w->w[l - 1] / 2;
         w->h[l] = w->h[l - 1] / 2;
-        if (grow((void **)&w->lev[l], &w->cap[l], ((size_t)w->w[l] * w->h[l] * 3 + 1) * sizeof(double)) < 0)
-            return -1;
-        reduce2(w->lev[l - 1], w->w[l - 1], w->h[l - 1], w->lev[l]);
     }
     *x0 = xa;
     *y0 = ya;
     return 0;
+}
+
+/* Pixel (i, j) of level lev of the crop. */
+static inline void level_px(const rf_work *w, int lev, int i, int j, double out[3])
+{
+    int k = 1 << lev;
+    double acc[3] = {0, 0, 0}, px[3];
+    for (int dj = 0; dj < k; dj++)
+        for (int di = 0; di < k; di++) {
+            load_px(w->frame, w->x0 + i * k + di, w->y0 + j * k + dj, px);
+            acc[0] += px[0];
+            acc[1] += px[1];
+            acc[2] += px[2];
+        }
+    double s = 1.0 / (k * k);
+    out[0] = acc[0] * s;
+    out[1] = acc[1] * s;
+    out[2] = acc[2] * s;
 }
 
 /* ---- geometry ------------------------------------------------------------------- */
@@ -306,7 +327,7 @@ static inline void normal_derivs(double u, double v, double cx, double cy, doubl
 }
 
 /* Bilinear value (3 channels) at body direction b, and d value / d b. */
-static inline void tex_sample(const double *tex, int w, int h, const double b[3], double val[3],
+static inline void tex_sample(const float *tex, int w, int h, const double b[3], double val[3],
                               double grad[3][3])
 {
     double bx = b[0], by = b[1], bz = b[2];
@@ -325,16 +346,17 @@ static inline void tex_sample(const double *tex, int w, int h, const double b[3]
     if (j1 < 0) j1 = 0;
     if (j0 > h - 1) j0 = h - 1;
     if (j0 < 0) j0 = 0;
-    const double *t00 = tex + ((size_t)j0 * w + i0) * 3, *t10 = tex + ((size_t)j0 * w + i1) * 3;
-    const double *t01 = tex + ((size_t)j1 * w + i0) * 3, *t11 = tex + ((size_t)j1 * w + i1) * 3;
-    double kw = w / (2 * M_PI), kh = -h / M_PI;
-    double dut[3] = {bz / rho2 * kw, 0, -bx / rho2 * kw};
+    const float *t00 = tex + ((size_t)j0 * w + i0) * 3, *t10 = tex + ((size_t)j0 * w + i1) * 3;
+    const float *t01 = tex + ((size_t)j1 * w + i0) * 3, *t11 = tex + ((size_t)j1 * w + i1) * 3;
+    double kw = w / (2 * M_PI), kh = -h / M_PI, krho = kw / rho2;
+    double dut[3] = {bz * krho, 0, -bx * krho};
     double dvt1 = kh / rho;
     for (int c = 0; c < 3; c++) {
-        double top = t00[c] + fx * (t10[c] - t00[c]);
-        double bot = t01[c] + fx * (t11[c] - t01[c]);
+        double a00 = t00[c], a10 = t10[c], a01 = t01[c], a11 = t11[c];
+        double top = a00 + fx * (a10 - a00);
+        double bot = a01 + fx * (a11 - a01);
         val[c] = top + fy * (bot - top);
-        double du = (t10[c] - t00[c]) + fy * ((t11[c] - t01[c]) - (t10[c] - t00[c]));
+        double du = (a10 - a00) + fy * ((a11 - a01) - (a10 - a00));
         double dv = bot - top;
         grad[c][0] = du * dut[0];
         grad[c][1] = dv * dvt1;
@@ -396,10 +418,7 @@ static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int s
         for (int i = i0; i < i1; i += stride) {
             double u = i + 0.5, v = j + 0.5;
             if ((u - cx) * (u - cx) + (v - cy) * (v - cy) > rm * rm) continue;
-            const double *p = w->lev[lev] + ((size_t)j * W + i) * 3;
-            w->pix[n].obs[0] = p[0];
-            w->pix[n].obs[1] = p[1];
-            w->pix[n].obs[2] = p[2];
+            level_px(w, lev, i, j, w->pix[n].obs);
             (*uv)[2 * n] = u;
             (*uv)[2 * n + 1] = v;
             n++;
@@ -413,7 +432,7 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
                      const double R[3][3], double cx, double cy, double r, double fixed_f,
                      double *sse_out, double *sst_out, double H[6][6], double g[6])
 {
-    const double *tex = t->px[lev];
+    const float *tex = t->px[lev];
     int tw = t->w[lev], th = t->h[lev];
     double f = focal_of(r, fixed_f);
     double AtA[3][6][6], Atb[3][6], sum[3] = {0, 0, 0}, sum2[3] = {0, 0, 0};
@@ -460,9 +479,11 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
         solve_spd(5, AtA[c], Atb[c], coef[c]);
     }
     double mean[3] = {sum[0] / np, sum[1] / np, sum[2] / np};
+    double JtA[3][6][5];
     if (H) {
         memset(H, 0, sizeof(double) * 36);
         memset(g, 0, sizeof(double) * 6);
+        memset(JtA, 0, sizeof JtA);
     }
     for (long k = 0; k < np; k++) {
         rf_pix *p = &w->pix[k];
@@ -474,18 +495,33 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
             sse += e * e;
             sum2[c] += d * d;
             if (H && !p->flat) {
-                double J[6];
+                double J[6], tv = p->val[c];
+                double ab[5] = {tv, tv * p->n[0], tv * p->n[1], tv * p->n[2], 1.0};
                 for (int i = 0; i < 3; i++) { J[i] = p->jw[c][i] * shade; J[3 + i] = p->jt[c][i] * shade; }
                 for (int i = 0; i < 6; i++) {
                     for (int j = i; j < 6; j++) H[i][j] += J[i] * J[j];
+                    for (int j = 0; j < 5; j++) JtA[c][i][j] += J[i] * ab[j];
                     g[i] += J[i] * e;
                 }
             }
         }
     }
-    if (H)
+    if (H) {
+        /* variable projection (training/refine.py _eval): take out of J^T J what
+         * the refitted photometric coefficients absorb, J^T A (A^T A)^-1 A^T J */
+        for (int c = 0; c < 3; c++) {
+            double X[6][5];
+            for (int i = 0; i < 6; i++) solve_spd(5, AtA[c], JtA[c][i], X[i]);
+            for (int i = 0; i < 6; i++)
+                for (int j = i; j < 6; j++) {
+                    double q = 0;
+                    for (int k = 0; k < 5; k++) q += JtA[c][i][k] * X[j][k];
+                    H[i][j] -= q;
+                }
+        }
         for (int i = 0; i < 6; i++)
             for (int j = 0; j < i; j++) H[i][j] = H[j][i];
+    }
     sst = sum2[0] + sum2[1] + sum2[2];
     *sse_out = sse;
     *sst_out = sst;
@@ -502,7 +538,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         seterr(err, errlen, "refine: no texture, frame or circle");
         return -1;
     }
-    int rc = frame_pyramid(w, frame, cx, cy, r, &x0, &y0);
+    int rc = frame_crop(w, frame, cx, cy, r, &x0, &y0);
     if (rc == -1) { seterr(err, errlen, "refine: out of memory"); return -1; }
     if (rc == -2) { seterr(err, errlen, "refine: circle outside the frame"); return -1; }
     cx -= x0;
@@ -538,7 +574,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         int lev = RF_RESIDUAL_LEVEL;
         double s = 1.0 / (1 << lev), sse, sst;
         double ff = focal_px > 0 ? focal_px * s : 0;
-        long np = pixel_set(w, lev, cx * s, cy * s, r * s, 1, &uv);
+        long np = pixel_set(w, lev, cx * s, cy * s, r * s, RF_RESIDUAL_STRIDE, &uv);
         if (np < 0) { seterr(err, errlen, "refine: out of memory"); return -1; }
         if (np < 50) { seterr(err, errlen, "refine: circle too small or outside the frame"); return -1; }
         evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &sse, &sst, NULL, NULL);

@@ -14,9 +14,11 @@
  * them back from the Python file). */
 #define RF_LEVELS 3
 #define RF_ITERS_INIT {3, 2, 1}       /* Gauss-Newton steps per level, coarse to fine */
-#define RF_STRIDES_INIT {1, 1, 2}     /* pixel sampling stride per level, coarse to fine */
-#define RF_RESIDUAL_LEVEL 1
+#define RF_STRIDES_INIT {2, 2, 4}     /* pixel sampling stride per level, coarse to fine */
+#define RF_RESIDUAL_LEVEL 1           /* the residual: this level's pixels ... */
+#define RF_RESIDUAL_STRIDE 2          /* ... every RF_RESIDUAL_STRIDE-th row and column */
 #define RF_RHO_MAX 0.92
+#define RF_CROP_PAD 4.0               /* the crop: the circle's square grown by this (px) */
 #define RF_TEXTURE_WIDTH 1024
 #define RF_DAMPING 1e-3
 #define RF_MAX_STEP_DEG 3.0

@@ -1,0 +1,245 @@
+/* Unit tests: refine.c (render-and-compare refinement, confidence rules).
+ * Frames come from a small renderer written here from docs/conventions.md
+ * (rays in millimetres, supersampled, nearest texel, a shading term), not from
+ * refine.c's own geometry. training/refine.py is checked against the same
+ * behaviour in tests/training/test_refine.py. */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include <cmocka.h>
+
+#include "refine.h"
+
+#ifndef M_PI
+#define M_PI 3.14159265358979323846
+#endif
+
+#define TW 2048
+#define TH 1024
+#define FW 640
+#define FH 512
+static const double F_PX = 16.0 / 0.0096, D_MM = 250.0, R_MM = 20.0;
+
+/* A block texture (BGR) from a fixed seed: random bars on white. */
+static uint8_t *make_texture(unsigned seed)
+{
+    uint8_t *t = malloc((size_t)TW * TH * 3);
+    static const uint8_t cols[3][3] = {{0, 0, 0}, {0, 128, 0}, {230, 40, 0}};
+    memset(t, 255, (size_t)TW * TH * 3);
+    for (int k = 0; k < 160; k++) {
+        seed = seed * 1103515245u + 12345u;
+        int x = (int)((seed >> 8) % TW), y = (int)((seed >> 4) % (TH - 80)) + 40;
+        seed = seed * 1103515245u + 12345u;
+        int horiz = (seed >> 9) & 1, len = 80 + (int)((seed >> 12) % 320), th = 24 + (int)((seed >> 20) % 20);
+        const uint8_t *c = cols[(seed >> 24) % 3];
+        for (int j = 0; j < (horiz ? th : len); j++)
+            for (int i = 0; i < (horiz ? len : th); i++) {
+                int yy = y + j, xx = (x + i) % TW;
+                if (yy < 0 || yy >= TH) continue;
+                memcpy(t + ((size_t)yy * TW + xx) * 3, c, 3);
+            }
+    }
+    return t;
+}
+
+/* The sphere at pose R seen by the conventions' camera with its principal
+ * point at (cx, cy), 3 x 3 samples per pixel. */
+static uint8_t *render(const uint8_t *tex, const double R[3][3], double cx, double cy)
+{
+    uint8_t *img = malloc((size_t)FW * FH * 3);
+    for (int v = 0; v < FH; v++)
+        for (int u = 0; u < FW; u++) {
+            double acc[3] = {0, 0, 0};
+            for (int a = 0; a < 4; a++)
+                for (int b = 0; b < 4; b++) {
+                    double x = (u + (b + 0.5) / 4 - cx) / F_PX, y = -(v + (a + 0.5) / 4 - cy) / F_PX;
+                    double L = sqrt(x * x + y * y + 1), d[3] = {x / L, y / L, -1 / L};
+                    double od = D_MM * d[2], disc = od * od - (D_MM * D_MM - R_MM * R_MM);
+                    if (disc < 0) { acc[0] += 64; acc[1] += 64; acc[2] += 70; continue; }
+                    double t = -od - sqrt(disc), n[3] = {t * d[0] / R_MM, t * d[1] / R_MM, (D_MM + t * d[2]) / R_MM};
+                    double bd[3];
+                    for (int i = 0; i < 3; i++) bd[i] = R[0][i] * n[0] + R[1][i] * n[1] + R[2][i] * n[2];
+                    double lon = atan2(bd[0], bd[2]), lat = asin(bd[1] > 1 ? 1 : bd[1] < -1 ? -1 : bd[1]);
+                    int ti = ((int)floor((lon + M_PI) / (2 * M_PI) * TW) % TW + TW) % TW;
+                    int tj = (int)floor((M_PI / 2 - lat) / M_PI * TH);
+                    if (tj < 0) tj = 0;
+                    if (tj >= TH) tj = TH - 1;
+                    double s = 0.45 + 0.2 * n[1] + 0.4 * n[2];
+                    for (int c = 0; c < 3; c++) acc[c] += tex[((size_t)tj * TW + ti) * 3 + c] * s;
+                }
+            for (int c = 0; c < 3; c++) img[((size_t)v * FW + u) * 3 + c] = (uint8_t)(acc[c] / 16 + 0.5);
+        }
+    return img;
+}
+
+static double geodesic_deg(const double A[3][3], const double B[3][3])
+{
+    double tr = 0;
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++) tr += A[k][i] * B[k][i];
+    double c = (tr - 1) / 2;
+    return acos(c > 1 ? 1 : c < -1 ? -1 : c) * 180 / M_PI;
+}
+
+static double r_true(void) { return F_PX * R_MM / sqrt(D_MM * D_MM - R_MM * R_MM); }
+
+static void refines_pose_and_circle(void **state)
+{
+    (void)state;
+    char err[256];
+    uint8_t *tex = make_texture(7);
+    rf_image ti = {tex, TW, TH, 3, TW * 3};
+    rf_texture *t = rf_texture_new(&ti, err);
+    assert_non_null(t);
+    rf_work *w = rf_work_new();
+    const double poses[2][3] = {{6.0, -11.0, 18.5}, {-27.0, 24.0, -4.0}};
+    for (int k = 0; k < 2; k++) {
+        double R[3][3], R0[3][3], Rp[3][3];
+        rf_euler_to_matrix(poses[k], R);
+        double cx = 327.3 + 5 * k, cy = 248.6;
+        uint8_t *img = render(tex, R, cx, cy);
+        rf_image fi = {img, FW, FH, 3, FW * 3};
+        /* start about a degree off, the circle 1.5 px and 1 % off */
+        double off[3] = {poses[k][0] + 0.8, poses[k][1] - 0.7, poses[k][2] + 0.6};
+        rf_euler_to_matrix(off, R0);
+        rf_out o;
+        double r = r_true();
+        assert_int_equal(rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, 0, 1, &o, err, sizeof err), 0);
+        double g = geodesic_deg(o.R, R);
+        printf("  pose %d: %.4f deg off, centre %+.3f %+.3f px, radius %+.3f px, residual %.4f, %d steps\n", k, g,
+               o.cx - cx, o.cy - cy, o.r - r, o.residual, o.iterations);
+        assert_true(g < 0.1);   /* the target, as a mean per axis: 0.1 deg */
+        assert_true(fabs(o.cx - cx) < 0.15 && fabs(o.cy - cy) < 0.15 && fabs(o.r - r) < 0.2);
+        assert_true(o.residual < 0.02);
+        /* the same with the focal length known */
+        assert_int_equal(rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, F_PX, 1, &o, err, sizeof err), 0);
+        assert_true(geodesic_deg(o.R, R) < 0.1);
+        /* steps = 0: R0 kept, the residual at it is larger */
+        rf_out o0;
+        assert_int_equal(rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, 0, 0, &o0, err, sizeof err), 0);
+        memcpy(Rp, o0.R, sizeof Rp);
+        assert_true(geodesic_deg(Rp, R0) == 0 && o0.iterations == 0);
+        assert_true(o0.residual > 3 * o.residual);
+        free(img);
+    }
+    /* another texture at the same pose: the residual says so */
+    {
+        uint8_t *other = make_texture(99);
+        double R[3][3], e[3] = {5, 10, -15};
+        rf_euler_to_matrix(e, R);
+        uint8_t *img = render(other, R, 320, 256);
+        rf_image fi = {img, FW, FH, 3, FW * 3};
+        rf_out o;
+        assert_int_equal(rf_refine(t, w, &fi, 320, 256, r_true(), R, 0, 1, &o, err, sizeof err), 0);
+        printf("  other texture: residual %.3f\n", o.residual);
+        assert_true(o.residual > 0.3);
+        free(img);
+        free(other);
+    }
+    rf_work_free(w);
+    rf_texture_free(t);
+    free(tex);
+}
+
+static void refuses_bad_input(void **state)
+{
+    (void)state;
+    char err[256];
+    uint8_t px[16 * 16 * 3] = {0};
+    rf_image bad = {px, 16, 16, 3, 48};
+    assert_null(rf_texture_new(&bad, err));
+    assert_non_null(strstr(err, "width = 2 x height"));
+    uint8_t *big = calloc(2 * 600 * 600 * 3, 1);
+    rf_image odd = {big, 1200, 600, 3, 3600};
+    assert_null(rf_texture_new(&odd, err));
+    assert_non_null(strstr(err, "multiple of 256"));
+    free(big);
+    uint8_t *tex = make_texture(1);
+    rf_image ti = {tex, TW, TH, 3, TW * 3};
+    rf_texture *t = rf_texture_new(&ti, err);
+    rf_work *w = rf_work_new();
+    double R[3][3], e[3] = {0, 0, 0};
+    rf_out o;
+    rf_euler_to_matrix(e, R);
+    uint8_t frame[64 * 48 * 3] = {0};
+    rf_image fi = {frame, 64, 48, 3, 64 * 3};
+    assert_int_equal(rf_refine(t, w, &fi, 500, 500, 30, R, 0, 1, &o, err, sizeof err), -1); /* off the frame */
+    assert_int_equal(rf_refine(t, w, &fi, 32, 24, 3, R, 0, 1, &o, err, sizeof err), -1);    /* too small */
+    assert_int_equal(rf_refine(t, w, &fi, NAN, 24, 20, R, 0, 1, &o, err, sizeof err), -1);
+    rf_work_free(w);
+    rf_texture_free(t);
+    free(tex);
+}
+
+static void base64(void **state)
+{
+    (void)state;
+    unsigned char *out;
+    size_t n;
+    assert_int_equal(rf_base64_decode("aGVsbG8gd29ybGQ=", &out, &n), 0);
+    assert_int_equal(n, 11);
+    assert_memory_equal(out, "hello world", 11);
+    free(out);
+    assert_int_equal(rf_base64_decode("", &out, &n), 0);
+    assert_int_equal(n, 0);
+    free(out);
+    assert_int_equal(rf_base64_decode("aGVsbG8*", &out, &n), -1);
+    assert_int_equal(rf_base64_decode("aGVsbG8", &out, &n), -1);   /* not a multiple of 4 */
+    assert_int_equal(rf_base64_decode("aG=sbG8=", &out, &n), -1);  /* data after padding */
+}
+
+static void euler_roundtrip(void **state)
+{
+    (void)state;
+    /* (12, -27, 6) of tests/data/conventions_vectors.json: R[2][0] = sin 27 deg */
+    double e[3] = {12, -27, 6}, R[3][3], back[3];
+    rf_euler_to_matrix(e, R);
+    assert_true(fabs(R[2][0] - sin(27 * M_PI / 180)) < 1e-12);
+    rf_matrix_to_euler(R, back);
+    for (int i = 0; i < 3; i++) assert_true(fabs(back[i] - e[i]) < 1e-9);
+}
+
+static void confidence_rules(void **state)
+{
+    (void)state;
+    rf_conf c;
+    char err[256], note[160];
+    rf_conf_defaults(&c);
+    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05}", "{\"x\": [-30, 30], \"y\": [-30, 30], \"z\": [-20, 40]}",
+                                   err, sizeof err), 0);
+    assert_true(c.residual_max == 0.05 && c.residual_max_unrefined == 0.05 && c.range_margin_deg == 2.0);
+    double in[3] = {10, -29, 41.9}, out[3] = {0, 45.04, 0}, zero[3] = {0, 0, 0};
+    assert_int_equal(rf_judge(&c, 0.01, in, 1, note, sizeof note), 1);
+    assert_string_equal(note, "");
+    assert_int_equal(rf_judge(&c, 0.06, zero, 1, note, sizeof note), 0);
+    assert_non_null(strstr(note, "poor alignment (residual 0.060 > 0.050)"));
+    assert_int_equal(rf_judge(&c, 0.01, out, 1, note, sizeof note), 0);
+    assert_string_equal(note, "outside the model's ranges (y = 45.0 not in [-30, 30])");
+    assert_int_equal(rf_judge(&c, NAN, zero, 1, note, sizeof note), 0);
+    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05, \"residual_max_unrefined\": 0.3}", NULL, err,
+                                   sizeof err), 0);
+    assert_int_equal(rf_judge(&c, 0.2, zero, 0, note, sizeof note), 1);
+    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 2}", NULL, err, sizeof err), -1);
+    assert_non_null(strstr(err, "residual_max"));
+    assert_int_equal(rf_conf_parse(&c, "[1]", NULL, err, sizeof err), -1);
+    assert_int_equal(rf_conf_parse(&c, NULL, "{\"x\": [1]}", err, sizeof err), -1);
+    assert_non_null(strstr(err, "spherepose.ranges"));
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(refines_pose_and_circle),
+        cmocka_unit_test(refuses_bad_input),
+        cmocka_unit_test(base64),
+        cmocka_unit_test(euler_roundtrip),
+        cmocka_unit_test(confidence_rules),
+    };
+    return cmocka_run_group_tests_name("refine", tests, NULL, NULL);
+}
