@@ -14,15 +14,22 @@ from .losses import abs_err, pose_loss
 SPLITS = ("val", "test", "test_offgrid")
 
 
-def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, epoch, should_stop=None):
-    """One pass over `data` (PoseSet), or until should_stop() is true; returns (mean loss, mean |error| deg)."""
+def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, epoch, should_stop=None,
+                    batches=None):
+    """One pass over `data` (PoseSet), or until should_stop() is true; returns (mean loss, mean |error| deg).
+
+    batches: this process's (images, labels) batches when several share the epoch (distributed.py);
+    default: all of `data`, shuffled with g, which also draws the augmentation."""
     from tqdm import tqdm
     model.train()
     augment = {"photometric": args.photometric, "geometric": args.geometric}
     tot_loss = tot_err = n = 0.0
-    steps = (len(data) + args.batch_size - 1) // args.batch_size
-    bar = tqdm(data.batches(args.batch_size, shuffle=True, generator=g, drop_last=True),
-               total=steps, desc=f"epoch {epoch + 1}/{args.epochs}", unit="batch",
+    if batches is None:
+        batches = data.batches(args.batch_size, shuffle=True, generator=g, drop_last=True)
+        steps = (len(data) + args.batch_size - 1) // args.batch_size
+    else:
+        steps = len(batches)
+    bar = tqdm(batches, total=steps, desc=f"epoch {epoch + 1}/{args.epochs}", unit="batch",
                disable=not args.progress, leave=False)
     for images, labels in bar:
         x = prepare_batch(images, params, augment, g).to(device, non_blocking=True)

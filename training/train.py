@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from . import distributed
 from . import metrics as M
 from . import preprocess as pp
 from .data import PoseSet, check_label_ranges
@@ -164,6 +165,14 @@ def load_split(root, split, params, args, required):
 # ----------------------------------------------------------------------- train
 
 def train(args):
+    """One run; under torchrun (WORLD_SIZE > 1) this process's part of it (training/distributed.py)."""
+    try:
+        return _train(args)
+    finally:
+        distributed.finish(distributed.from_env())
+
+
+def _train(args):
     timer = Timer()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -177,9 +186,16 @@ def train(args):
         args.epochs = epochs or args.epochs
         start_epoch = ck["epoch"] + 1
     args.epochs = args.epochs or 20
-    set_threads(args.threads)
+    ctx = distributed.from_env()
+    if ctx.active:
+        ctx, device = distributed.setup(args.device, args.batch_size)
+        torch.set_num_threads(distributed.threads(args.threads, ctx))
+        args.progress = args.progress and ctx.main
+    else:
+        set_threads(args.threads)
     set_seed(args.seed)
-    device = pick_device(args.device)
+    if not ctx.active:
+        device = pick_device(args.device)
     params = pp.params(args.preprocess)
     if args.size:
         params["size"] = args.size
@@ -192,17 +208,21 @@ def train(args):
         config = ck["config"]
         params = config["preprocess"]
 
-    train_set = load_split(args.data, "train", params, args, True)
-    for extra in args.extra_train:
-        more = PoseSet(extra, params, cache=args.cache, progress=args.progress, workers=args.workers)
-        train_set.images = torch.cat([train_set.images, more.images])
-        train_set.labels = torch.cat([train_set.labels, more.labels])
-        train_set.names = train_set.names + [f"{Path(extra).name}/{n}" for n in more.names]
-    val_set = load_split(args.data, "val", params, args, True)
+    with distributed.main_first(ctx):   # one process at a time builds a folder's crop cache
+        train_set = load_split(args.data, "train", params, args, True)
+        for extra in args.extra_train:
+            more = PoseSet(extra, params, cache=args.cache, progress=args.progress, workers=args.workers)
+            train_set.images = torch.cat([train_set.images, more.images])
+            train_set.labels = torch.cat([train_set.labels, more.labels])
+            train_set.names = train_set.names + [f"{Path(extra).name}/{n}" for n in more.names]
+        val_set = load_split(args.data, "val", params, args, True)
     for split_set in (train_set, val_set):  # frames labelled outside the model's ranges: named, or refused
         check_label_ranges(split_set, config["ranges"], strict=getattr(args, "strict", False))
-    print(f"posetrain: {config['texture']}: {len(train_set)} train, {len(val_set)} val frames; "
-          f"{args.arch}/{args.head} on {device} ({torch.get_num_threads()} threads)", flush=True)
+    if ctx.main:
+        print(f"posetrain: {config['texture']}: {len(train_set)} train, {len(val_set)} val frames; "
+              f"{args.arch}/{args.head} on {device} ({torch.get_num_threads()} threads)"
+              + (f" x {ctx.world} processes, batch {args.batch_size // ctx.world} each" if ctx.active else ""),
+              flush=True)
 
     model = build(config).to(device)
     optimizer = torch.optim.AdamW(model.parameters(), lr=args.lr, weight_decay=args.weight_decay)
@@ -241,13 +261,25 @@ def train(args):
         scheduler.load_state_dict(ck["scheduler"])
         g.set_state(ck["generator"])
         best_mae = ck.get("best_mae", best_mae)
-        print(f"posetrain: resumed from {args.resume} at epoch {start_epoch + 1}", flush=True)
-    log = CsvLog(out / "log.csv")
+        if ctx.main:
+            print(f"posetrain: resumed from {args.resume} at epoch {start_epoch + 1}", flush=True)
+    train_model = distributed.wrap(model, ctx, device) if ctx.active else model   # after the weights are loaded
+    log = CsvLog(out / "log.csv") if ctx.main else None
     saved_args = {k: v for k, v in vars(args).items() if k != "func"}
     for epoch in range(start_epoch, args.epochs):
         t_ep = Timer()
-        stop = (lambda: spent() >= budget_s) if budget_s > 0 else None
-        loss, tr_mae = train_one_epoch(model, optimizer, scheduler, train_set, params, args, device, g, epoch, stop)
+        stop = (lambda: distributed.agree(spent() >= budget_s, ctx)) if budget_s > 0 else None
+        if ctx.active:
+            loss, tr_mae = train_one_epoch(train_model, optimizer, scheduler, train_set, params, args, device,
+                                           distributed.generator(args.seed, ctx, epoch), epoch, stop,
+                                           distributed.ShardBatches(train_set, args.batch_size, ctx, args.seed, epoch))
+            loss, tr_mae = distributed.average([loss, tr_mae], ctx)
+        else:
+            loss, tr_mae = train_one_epoch(model, optimizer, scheduler, train_set, params, args, device, g, epoch, stop)
+        if not ctx.main:    # rank 0 alone evaluates and writes; this process waits for it at the next step
+            if budget_s > 0 and distributed.agree(spent() >= budget_s, ctx):
+                break
+            continue
         vm, _ = evaluate(model, val_set, params, device)
         lr = optimizer.param_groups[0]["lr"]
         log.write(epoch=epoch + 1, lr=f"{lr:.3g}", train_loss=f"{loss:.4f}", train_mae=f"{tr_mae:.4f}",
@@ -265,10 +297,12 @@ def train(args):
             os.replace(out / "best.pth.tmp", out / "best.pth")
         torch.save(state, out / "checkpoint.pth.tmp")
         os.replace(out / "checkpoint.pth.tmp", out / "checkpoint.pth")
-        if budget_s > 0 and spent() >= budget_s:
+        if budget_s > 0 and distributed.agree(spent() >= budget_s, ctx):
             print(f"posetrain: time budget of {args.time_budget:g} min spent after epoch {epoch + 1}", flush=True)
             break
     train_s = timer()
+    if not ctx.main:
+        return None
 
     # final report on the best checkpoint
     model, ck = load_checkpoint(out / "best.pth", device)
@@ -278,6 +312,8 @@ def train(args):
             "train_frames": len(train_set), "train_s": round(train_s, 1), "device": describe_device(device),
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "command": "posetrain " + " ".join(sys.argv[1:]) if sys.argv[0].endswith("posetrain") else None}
+    if ctx.active:
+        info["processes"] = ctx.world
     M.save_json(out / "run.json", info)
     if args.export:
         val_x = check_images(val_set, params)

@@ -77,6 +77,7 @@ def split_files(folder):
     return {s: sorted(os.listdir(os.path.join(folder, s))) for s in ("train", "val")}
 
 
+@pytest.mark.slow
 def test_ray_engine_renders_the_local_engines_bytes(cluster, local_set, texture_png, small_camera_json, tmp_path):
     address, env, _ = cluster
     out = str(tmp_path / "ray")
@@ -114,6 +115,7 @@ def _our_render_tasks(temp):
     return pids
 
 
+@pytest.mark.slow
 def test_a_killed_task_is_run_again(cluster, local_set, texture_png, small_camera_json, tmp_path):
     address, env, temp = cluster
     out = str(tmp_path / "ray_killed")
