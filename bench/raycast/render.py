@@ -71,15 +71,17 @@ def frame_camera(scene, cam):
     return cam.at(distance_mm=float(scene["distance_mm"]))
 
 
-def trace(scene, cam, u, v):
+def trace(scene, cam, u, v, with_mount=True):
     """What the rays through frame points (u, v) meet: hit id [N] (SPHERE, mount part k >= 1 or
-    BACKDROP), world points [N, 3], normals [N, 3], ray directions [N, 3]."""
+    BACKDROP), world points [N, 3], normals [N, 3], ray directions [N, 3]. with_mount=False: the
+    sphere alone (for rays known to see nothing else)."""
     cam = frame_camera(scene, cam)
     o = np.array([0.0, 0.0, cam.distance_mm])
     d = camera.pixel_rays(cam, np.ravel(u), np.ravel(v), scene.get("shift_px", (0.0, 0.0))).reshape(-1, 3)
     t_best, n_best = shapes.sphere_hit(o, d, cam.radius_mm)
     hit = np.where(np.isfinite(t_best), SPHERE, BACKDROP)
-    for k, (fn, _) in enumerate(mounts.solids(scene.get("mount"), cam.radius_mm), start=1):
+    parts = mounts.solids(scene.get("mount"), cam.radius_mm) if with_mount else []
+    for k, (fn, _) in enumerate(parts, start=1):
         t, n = fn(o, d)
         nearer = t < t_best
         t_best = np.where(nearer, t, t_best)
@@ -168,14 +170,18 @@ def radiance(scene, cam, tex, supersample=4):
     if coarse.any():
         sel = coarse.ravel()
         img[coarse] = _shade(scene, cam, None, hit.ravel()[sel], p[sel], n[sel], d[sel])
-    fy, fx = np.nonzero(fine)
-    if len(fy):
+    # Pixels whose 3x3 neighbourhood sees the sphere alone: their sub-rays need the sphere test only.
+    inside = cv2.erode((hit == SPHERE).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    for group, with_mount in ((fine & inside, False), (fine & ~inside, True)):
+        fy, fx = np.nonzero(group)
+        if not len(fy):
+            continue
         s = supersample
         off = (np.arange(s) + 0.5) / s
         ou, ov = np.meshgrid(off, off)
         u = fx[:, None] + ou.ravel()[None, :]
         v = fy[:, None] + ov.ravel()[None, :]
-        sh, sp, sn, sd = trace(scene, cam, u, v)
+        sh, sp, sn, sd = trace(scene, cam, u, v, with_mount)
         col = _shade(scene, cam, tex, sh, sp, sn, sd).reshape(len(fy), s * s, 3)
         back = np.repeat(bg[fy, fx][:, None, :], s * s, axis=1)
         col = np.where(np.isnan(col), back, col)
