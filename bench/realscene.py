@@ -91,7 +91,16 @@ def family_metrics(rows):
     """rows: dicts with pose, pred (or None), circle truth, found circle (or None)."""
     n = len(rows)
     ok = [r for r in rows if r["pred"] is not None]
-    m = {"n": n, "answered": len(ok), "answered_pct": 100.0 * len(ok) / max(n, 1)}
+    m = {"n": n, "answered": len(ok), "answered_pct": 100.0 * len(ok) / max(n, 1),
+         "flagged": sum(1 for r in ok if r.get("confident") is False)}
+    net = [r for r in ok if r.get("net") is not None]
+    if net:
+        e_net = np.abs(wrap(np.array([r["net"] for r in net]) - np.array([r["pose"] for r in net])))
+        m.update(net_mae=float(e_net.mean()), net_max=float(e_net.max()))
+    trusted = [r for r in ok if r.get("confident") is not False]
+    if m["flagged"] and trusted:
+        e_t = np.abs(wrap(np.array([r["pred"] for r in trusted]) - np.array([r["pose"] for r in trusted])))
+        m.update(unflagged_mae=float(e_t.mean()), unflagged_max=float(e_t.max()))
     if ok:
         pred = np.array([r["pred"] for r in ok])
         true = np.array([r["pose"] for r in ok])
@@ -153,11 +162,16 @@ def run_poseinfer(args, folder, n, has_camera_file, bar):
     return cmd, results
 
 
+CIRCLE_SOURCES = set()
+
+
 def found_circle(r):
     """(cx, cy, r) in continuous pixels from a result line, or None."""
     if isinstance(r.get("circle"), list) and len(r["circle"]) == 3:
+        CIRCLE_SOURCES.add("the result's \"circle\"")
         return [float(v) for v in r["circle"]]
     if all(k in r for k in ("cx", "cy", "r")):
+        CIRCLE_SOURCES.add("--timings' cx, cy + 0.5 (OpenCV pixel centres), r")
         return [float(r["cx"]) + 0.5, float(r["cy"]) + 0.5, float(r["r"])]   # OpenCV centres at integers
     return None
 
@@ -170,16 +184,28 @@ def fmt(m, key, digits=2):
 
 
 def table(metrics):
-    lines = ["| family | n | answered | MAE | RMSE | max | geo mean | geo median | geo p95 | geo max "
+    lines = ["| family | n | answered | flagged | MAE | RMSE | max | geo mean | geo median | geo p95 | geo max "
              "| frames max > 3° | centre err median / max (px) | radius err mean / max (%) |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for fam, m in metrics.items():
         loc = (f"{fmt(m, 'centre_median')} / {fmt(m, 'centre_max')}" if "centre_median" in m else "–")
         rad = (f"{fmt(m, 'radius_mean')} / {fmt(m, 'radius_max')}" if "radius_mean" in m else "–")
-        lines.append(f"| {fam} | {m['n']} | {m['answered_pct']:.0f} % | {fmt(m, 'mae', 3)} | {fmt(m, 'rmse', 3)} "
+        lines.append(f"| {fam} | {m['n']} | {m['answered_pct']:.0f} % | {m['flagged']} | {fmt(m, 'mae', 3)} "
+                     f"| {fmt(m, 'rmse', 3)} "
                      f"| {fmt(m, 'max')} | {fmt(m, 'geo_mean', 3)} | {fmt(m, 'geo_median', 3)} | {fmt(m, 'geo_p95')} "
                      f"| {fmt(m, 'geo_max')} | {m.get('over3', '–')} | {loc} | {rad} |")
     return "\n".join(lines)
+
+
+def extra_table(metrics):
+    """The network's own answer before refinement, and the frames not flagged, where the runtime gives them."""
+    if not any("net_mae" in m or "unflagged_mae" in m for m in metrics.values()):
+        return ""
+    lines = ["| family | network alone: MAE / max | frames not flagged: MAE / max |", "| --- | ---: | ---: |"]
+    for fam, m in metrics.items():
+        lines.append(f"| {fam} | {fmt(m, 'net_mae', 3)} / {fmt(m, 'net_max')} "
+                     f"| {fmt(m, 'unflagged_mae', 3)} / {fmt(m, 'unflagged_max')} |")
+    return "\n".join(lines) + "\n"
 
 
 def scene_tags(scene):
@@ -305,11 +331,13 @@ def main(args):
             rows.append({"file": t["file"], "pose": t["pose"], "circle": t["circle"],
                          "pred": [r["x"], r["y"], r["z"]] if answered else None,
                          "error": None if answered else r.get("error", "no pose"),
-                         "found": found_circle(r) if answered else None, "tags": scene_tags(t["scene"])})
+                         "found": found_circle(r) if answered else None, "tags": scene_tags(t["scene"]),
+                         "confident": r.get("confident"), "net": r.get("net") if answered else None})
         rows_by_family[fam] = rows
         metrics[fam] = family_metrics(rows)
         m = metrics[fam]
         print(f"{fam}: MAE {fmt(m, 'mae', 3)}°, max {fmt(m, 'max')}°, answered {m['answered_pct']:.0f} %, "
+              f"flagged {m['flagged']}, "
               f"centre {fmt(m, 'centre_median')} px", flush=True)
     elapsed = time.time() - t0
 
@@ -329,12 +357,11 @@ def main(args):
         f"runtime: `{cmds[0] if cmds else ''}`",
         f"- frames: {args.n} per family, seed {args.seed}, camera "
         f"{args.camera or 'reference'}, supersampling {args.supersample}x{args.supersample}",
-        f"- localisation from the result's "
-        f"{'circle' if any(r['found'] is not None for rows in rows_by_family.values() for r in rows) else 'nothing'}"
-        " field (or --timings' cx, cy, r + 0.5)",
+        f"- sphere found: from {' and '.join(sorted(CIRCLE_SOURCES)) or 'nothing (the runtime reports no circle)'}",
     ] + [f"- note: {n}" for n in notes] + [
-        "", "Degrees; MAE, RMSE, max over all three axes (docs/conventions.md), over the frames answered.", "",
-        table(metrics), "", "## Breakdown", "", breakdown(rows_by_family), "", "## Worst frames", "",
+        "", "Degrees; MAE, RMSE, max over all three axes (docs/conventions.md), over the frames answered; "
+        "flagged: answered with \"confident\": false.", "",
+        table(metrics), "", extra_table(metrics), "## Breakdown", "", breakdown(rows_by_family), "", "## Worst frames", "",
         worst(rows_by_family), "", "![errors](realscene.png)", ""]
     with open(os.path.join(args.out, "report.md"), "w", encoding="utf-8") as f:
         f.write("\n".join(report))
