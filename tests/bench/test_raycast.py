@@ -181,3 +181,22 @@ def test_names_follow_the_conventions():
     assert frames.frame_name([12.0, -3.0, 30.0]) == "12_-3_30.png"
     assert frames.frame_name([7.5, 3.25, -14.125]) == "7.5_3.25_-14.125.png"
     assert frames.frame_name([-0.0004, 0.1, -29.9999]) == "0_0.1_-30.png"
+
+
+def test_lens_frame_undistorts_to_the_truth_circle():
+    """A frame through a distorting lens, undistorted by OpenCV, shows the sphere on truth's circle."""
+    cam = camera.load_camera(os.path.join(ROOT, "bench", "raycast", "cameras", "lens.json"))
+    assert cam.distorted
+    scene = flat_scene((0, 0, 0), shift_px=[140.0, -90.0])
+    tex = np.ones((64, 128, 3), np.float32)
+    img = render.radiance(scene, cam, tex, supersample=4)[..., 0]
+    u0, v0 = cam.principal
+    K = np.array([[cam.f_px, 0, u0 - 0.5], [0, cam.f_px, v0 - 0.5], [0, 0, 1]])
+    und = cv2.undistort(img, K, np.array(cam.distortion))
+    cx, cy, r = render.circle(scene, cam)
+    ys, xs = np.mgrid[0:und.shape[0], 0:und.shape[1]]
+    assert abs(math.sqrt(und.sum() / math.pi) - r) < 0.1
+    assert abs(((xs + 0.5) * und).sum() / und.sum() - cx) < 0.1
+    assert abs(((ys + 0.5) * und).sum() / und.sum() - cy) < 0.1
+    # The distorted frame itself is not that circle (the lens moved it).
+    assert abs(((xs + 0.5) * img).sum() / img.sum() - cx) > 0.5
