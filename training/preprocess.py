@@ -1,8 +1,23 @@
-"""Preprocessing "sphere-crop-v1": a camera frame -> the network input tensor.
+"""Preprocessing: a camera frame -> the network input tensor.
 
-The one Python implementation (docs/interfaces.md gives the algorithm step
-by step; host/ implements the same steps in C++ and is tested against this).
-Its parameters are written into every exported model's metadata.
+Two algorithms, chosen by the parameters' "name" (docs/interfaces.md gives
+both step by step; host/ implements the same steps in C++ and is tested
+against this, byte for byte):
+
+- "sphere-crop-v2" (the default for new models): the sphere's circle from
+  colour edges (gradient-direction Hough vote on a reduced image, then
+  sub-pixel edges along rays from the centre and a robust circle fit), so a
+  mounting post, a cluttered or uneven background and vignetting do not move
+  it; the crop keeps only the inside of that circle, everything else one
+  constant colour. Optional camera calibration: expected radius, lens
+  distortion (undistorted first).
+- "sphere-crop-v1" (older models): border-median background, threshold,
+  largest blob, enclosing circle.
+
+The parameters are written into every exported model's metadata. The v2
+arithmetic is written so that C++ can repeat it exactly: integers where
+possible, float64 element by element, sums in a fixed sequential order,
+no libm function but sqrt.
 """
 import json
 import math
@@ -10,9 +25,12 @@ import math
 import cv2
 import numpy as np
 
-NAME = "sphere-crop-v1"
-DEFAULTS = {
-    "name": NAME,
+NAME_V1 = "sphere-crop-v1"
+NAME_V2 = "sphere-crop-v2"
+NAME = NAME_V2
+
+DEFAULTS_V1 = {
+    "name": NAME_V1,
     "size": 128,
     "margin": 1.15,
     "fg_threshold": 40,
@@ -23,18 +41,79 @@ DEFAULTS = {
     "std": [0.229, 0.224, 0.225],
 }
 
+DEFAULTS_V2 = {
+    "name": NAME_V2,
+    "size": 128,
+    "margin": 1.15,
+    "mean": [0.485, 0.456, 0.406],
+    "std": [0.229, 0.224, 0.225],
+    # radius search range: without a camera file, fractions of min(H, W);
+    # with one, the expected radius times 1 -/+ r_tol
+    "r_min_frac": 0.05,
+    "r_max_frac": 0.5,
+    "r_tol": 0.15,
+    # coarse stage: the frame reduced by s = max(1, min(H, W) // coarse_size)
+    # (block means); its Sobel edges (channel of the largest gradient, at least
+    # edge_min, thinned across the edge) vote along their gradient direction
+    # for (centre, radius bin about coarse_rbin * radius wide); the `candidates`
+    # best peaks with at least cand_frac of the best's votes go on
+    "coarse_size": 170,
+    "coarse_rbin": 0.08,
+    "edge_min": 24,
+    "candidates": 4,
+    "cand_frac": 0.35,
+    # fine stage, per candidate: `rays` rays from the centre; edge candidates
+    # on each (local maxima of at least ray_edge_min of the colour step over
+    # 1 px); first pass: within +-(consensus_cells * s + consensus_px) of the
+    # radius, the centre shift and radius most rays agree on (grid of
+    # consensus_step_px); every pass: irls_iters rounds of "nearest candidate
+    # per ray, Tukey weights (tukey_c times the robust scale, at least
+    # sigma_min_px), algebraic circle fit"; passes after the first cast the
+    # rays again from the new centre, within +-(fine_window_px +
+    # fine_window_frac * r)
+    "rays": 128,
+    "ray_edge_min": 12,
+    "consensus_cells": 4,
+    "consensus_px": 4,
+    "consensus_step_px": 2,
+    "fine_passes": 3,
+    "fine_window_px": 3,
+    "fine_window_frac": 0.02,
+    "irls_iters": 6,
+    "tukey_c": 4.0,
+    "sigma_min_px": 0.3,
+    # support of a circle: the fraction of all rays with an edge within
+    # inlier_px of it. The sphere is the best supported circle with at least
+    # min_support; another one of about its size (radii within 1 + 2 r_tol)
+    # away from it is a second sphere (error); more than max_cut of its rim
+    # outside the frame is an error too
+    "inlier_px": 1.0,
+    "min_support": 0.5,
+    "max_cut": 0.15,
+    # crop: everything farther than r (1 + mask_frac) from the centre is `fill` (BGR)
+    "mask_frac": 0.02,
+    "fill": [128, 128, 128],
+}
+
+DEFAULTS = DEFAULTS_V2
+
 
 class NoSphere(ValueError):
-    """The frame holds nothing that looks like the sphere."""
+    """The frame holds nothing that looks like the sphere (or not one sphere, whole)."""
 
 
 def params(overrides=None):
-    """Preprocessing parameters: the defaults updated by `overrides` (dict or JSON text)."""
-    p = dict(DEFAULTS)
-    if overrides:
-        p.update(json.loads(overrides) if isinstance(overrides, str) else overrides)
-    if p["name"] != NAME:
-        raise ValueError(f"unknown preprocessing {p['name']!r}; this code implements {NAME!r}")
+    """Preprocessing parameters: the defaults of the named algorithm (v2 unless overrides name
+    another) updated by `overrides` (dict or JSON text). A v2 set must hold every v2 key."""
+    o = (json.loads(overrides) if isinstance(overrides, str) else dict(overrides)) if overrides else {}
+    name = o.get("name", NAME)
+    if name == NAME_V1:
+        p = dict(DEFAULTS_V1)
+    elif name == NAME_V2:
+        p = dict(DEFAULTS_V2)
+    else:
+        raise ValueError(f"unknown preprocessing {name!r}; this code implements {NAME_V1!r} and {NAME_V2!r}")
+    p.update(o)
     return p
 
 
@@ -46,8 +125,96 @@ def _as_bgr(frame):
     return frame
 
 
+# ---- camera ---------------------------------------------------------------------------------
+
+def _cam_get(camera, key, default=None):
+    if isinstance(camera, dict):
+        return camera.get(key, default)
+    return getattr(camera, key, default)
+
+
+def camera_geometry(camera):
+    """(expected radius px, fx, u0, v0, distortion or None) of a camera (sim.camera.Camera or a
+    dict of camera-file keys); u0, v0 in OpenCV pixel coordinates (pixel centres at integers)."""
+    from sim.camera import REFERENCE
+    g = {k: float(_cam_get(camera, k, REFERENCE[k])) for k in REFERENCE}
+    f = g["focal_mm"] / g["pixel_mm"]
+    R, D = g["sphere_diameter_mm"] / 2.0, g["distance_mm"]
+    r_px = f * R / math.sqrt(D * D - R * R)
+    pp = _cam_get(camera, "principal_px", None)
+    u0, v0 = (g["width"] / 2.0, g["height"] / 2.0) if pp is None else (float(pp[0]), float(pp[1]))
+    dist = _cam_get(camera, "distortion", None)
+    if dist is not None and not any(float(d) != 0.0 for d in dist):
+        dist = None
+    return r_px, f, u0 - 0.5, v0 - 0.5, (None if dist is None else [float(d) for d in dist])
+
+
+def undistort(frame, camera):
+    """The frame without the camera's lens distortion (OpenCV's model, same camera matrix in and
+    out): output pixel (x, y) takes the distorted image at the model's point for it, bilinear with
+    weights in 1/32 steps (as cv2.remap's fixed point), outside the frame 0. Unchanged when the
+    camera has no distortion. Written out (not cv2.undistort) so that C++ gives the same bytes."""
+    frame = _as_bgr(frame)
+    _, f, cx, cy, dist = camera_geometry(camera)
+    if dist is None:
+        return frame
+    h, w = frame.shape[:2]
+    mx, my = _undistort_map(w, h, f, cx, cy, tuple(dist))
+    return _remap_bilinear(frame, mx, my)
+
+
+_MAP_CACHE = {}
+
+
+def _undistort_map(w, h, f, cx, cy, dist):
+    key = (w, h, f, cx, cy, dist)
+    if key in _MAP_CACHE:
+        return _MAP_CACHE[key]
+    k1, k2, p1, p2, k3 = (list(dist) + [0.0] * 5)[:5]
+    x = (np.arange(w, dtype=np.float64) - cx) / f
+    y = (np.arange(h, dtype=np.float64) - cy) / f
+    x, y = np.broadcast_to(x[None, :], (h, w)), np.broadcast_to(y[:, None], (h, w))
+    x2, y2, xy = x * x, y * y, x * y
+    r2 = x2 + y2
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + (2.0 * p1) * xy + p2 * (r2 + 2.0 * x2)
+    yd = y * radial + p1 * (r2 + 2.0 * y2) + (2.0 * p2) * xy
+    # source position in 1/32 pixel steps (as cv2.remap's INTER_LINEAR fixed point)
+    mx = np.floor((f * xd + cx) * 32.0 + 0.5)
+    my = np.floor((f * yd + cy) * 32.0 + 0.5)
+    big = 32.0 * (1 << 24)
+    mx = np.clip(mx, -big, big).astype(np.int64)
+    my = np.clip(my, -big, big).astype(np.int64)
+    if len(_MAP_CACHE) > 4:
+        _MAP_CACHE.clear()
+    _MAP_CACHE[key] = (mx, my)
+    return mx, my
+
+
+def _remap_bilinear(img, mx, my):
+    h, w = img.shape[:2]
+    x0, y0 = mx >> 5, my >> 5
+    ax, ay = mx & 31, my & 31
+    out = np.zeros((h, w, 3), np.int64)
+    pad = np.zeros((h + 2, w + 2, 3), np.int64)
+    pad[1:-1, 1:-1] = img
+    # corners outside the frame read 0 (the padded ring), farther ones are clamped into the ring
+    xa = np.clip(x0 + 1, 0, w + 1)
+    xb = np.clip(x0 + 2, 0, w + 1)
+    ya = np.clip(y0 + 1, 0, h + 1)
+    yb = np.clip(y0 + 2, 0, h + 1)
+    w00 = ((32 - ax) * (32 - ay))[..., None]
+    w01 = (ax * (32 - ay))[..., None]
+    w10 = ((32 - ax) * ay)[..., None]
+    w11 = (ax * ay)[..., None]
+    out = pad[ya, xa] * w00 + pad[ya, xb] * w01 + pad[yb, xa] * w10 + pad[yb, xb] * w11
+    return ((out + 512) >> 10).astype(np.uint8)
+
+
+# ---- sphere-crop-v1 -------------------------------------------------------------------------
+
 def background_colour(frame, p):
-    """Per-channel median of the border band (step 1)."""
+    """Per-channel median of the border band (v1 step 1)."""
     h, w = frame.shape[:2]
     b = max(2, math.floor(p["border_frac"] * min(h, w) + 0.5))
     band = np.concatenate([
@@ -56,10 +223,7 @@ def background_colour(frame, p):
     return np.median(band.astype(np.float64), axis=0)
 
 
-def find_sphere(frame, p=None):
-    """(cx, cy, r, bg) of the sphere in a BGR uint8 frame (steps 1-5); NoSphere if there is none."""
-    p = p or DEFAULTS
-    frame = _as_bgr(frame)
+def _find_sphere_v1(frame, p):
     h, w = frame.shape[:2]
     bg = background_colour(frame, p)
     # max over channels of |I_c - bg_c|, channel by channel (numpy's max over a length-3 last axis
@@ -85,8 +249,447 @@ def find_sphere(frame, p=None):
     return cx, cy, r, bg
 
 
+# ---- sphere-crop-v2: coarse stage -----------------------------------------------------------
+
+def radius_range(h, w, p, camera=None):
+    """(r_min, r_max) in pixels: from the camera's expected radius, or fractions of min(H, W)."""
+    if camera is not None:
+        r = camera_geometry(camera)[0]
+        return r * (1.0 - p["r_tol"]), r * (1.0 + p["r_tol"])
+    m = float(min(h, w))
+    return p["r_min_frac"] * m, p["r_max_frac"] * m
+
+
+def _reduce(frame, s):
+    """Block means (rounded half up, integers) of s x s blocks, the remainder rows/columns dropped."""
+    h, w = frame.shape[:2]
+    hs, ws = h // s, w // s
+    if s == 1:
+        return frame.astype(np.int32)
+    b = frame[:hs * s, :ws * s].astype(np.int32).reshape(hs, s, ws, s, 3).sum(axis=(1, 3))
+    return (b + (s * s) // 2) // (s * s)
+
+
+def _edges(red, edge_min):
+    """Edge pixels of the reduced image: Sobel per channel, the channel of largest gx^2 + gy^2
+    (first on ties), at least edge_min^2, kept where not below both neighbours across the edge.
+    Returns x, y, gx, gy (int64 arrays, row-major order)."""
+    hs, ws = red.shape[:2]
+    g = red.astype(np.int64)
+    gx = (g[:-2, 2:] + 2 * g[1:-1, 2:] + g[2:, 2:]) - (g[:-2, :-2] + 2 * g[1:-1, :-2] + g[2:, :-2])
+    gy = (g[2:, :-2] + 2 * g[2:, 1:-1] + g[2:, 2:]) - (g[:-2, :-2] + 2 * g[:-2, 1:-1] + g[:-2, 2:])
+    m2 = gx * gx + gy * gy
+    best = np.zeros(m2.shape[:2], np.int64)
+    for c in (1, 2):
+        best = np.where(m2[:, :, c] > m2[np.arange(m2.shape[0])[:, None], np.arange(m2.shape[1])[None, :], best],
+                        c, best)
+    ii, jj = np.indices(best.shape)
+    GX, GY, M2 = gx[ii, jj, best], gy[ii, jj, best], m2[ii, jj, best]
+    # interior of the gradient image: (hs - 2) x (ws - 2), frame pixel (x, y) = (j + 1, i + 1).
+    # Non-maximum suppression needs the neighbours: pad M2 with zeros.
+    P = np.zeros((M2.shape[0] + 2, M2.shape[1] + 2), np.int64)
+    P[1:-1, 1:-1] = M2
+    ax, ay = np.abs(GX), np.abs(GY)
+    horiz = 5 * ay <= 2 * ax
+    vert = 5 * ax <= 2 * ay
+    same = (GX > 0) == (GY > 0)
+    c0 = P[1:-1, 1:-1]
+    n_l, n_r = P[1:-1, :-2], P[1:-1, 2:]
+    n_u, n_d = P[:-2, 1:-1], P[2:, 1:-1]
+    n_ul, n_dr = P[:-2, :-2], P[2:, 2:]
+    n_ur, n_dl = P[:-2, 2:], P[2:, :-2]
+    a = np.where(horiz, n_l, np.where(vert, n_u, np.where(same, n_ul, n_ur)))
+    b = np.where(horiz, n_r, np.where(vert, n_d, np.where(same, n_dr, n_dl)))
+    keep = (M2 >= edge_min * edge_min) & (c0 >= a) & (c0 >= b)
+    yi, xi = np.nonzero(keep)
+    return xi + 1, yi + 1, GX[yi, xi], GY[yi, xi]
+
+
+def _radius_bins(lo, hi, q):
+    """Bin of each integer radius lo..hi (reduced pixels): bins about q * radius wide."""
+    bins, start, b = [], lo, 0
+    for rho in range(lo, hi + 1):
+        if rho > start * (1.0 + q) and rho - start >= 2:
+            b += 1
+            start = rho
+        bins.append(b)
+    return bins
+
+
+def _coarse(frame, p, rmin, rmax):
+    """Candidate circles [(cx, cy, r, votes)] in frame coordinates, strongest first, from the
+    reduced image; the scale s too. Votes go to (centre, radius bin): a circle's edges agree on
+    both, clutter's do not."""
+    h, w = frame.shape[:2]
+    s = max(1, min(h, w) // p["coarse_size"])
+    red = _reduce(frame, s)
+    hs, ws = red.shape[:2]
+    if hs < 8 or ws < 8:
+        return [], s
+    x, y, gx, gy = _edges(red, p["edge_min"])
+    if x.size == 0:
+        return [], s
+    lo = max(1, math.floor(rmin / s))
+    hi = math.floor(rmax / s) + 1
+    bins = _radius_bins(lo, hi, p["coarse_rbin"])
+    nb = bins[-1] + 1
+    rho = np.arange(lo, hi + 1, dtype=np.float64)
+    rb = np.array(bins, np.int64)
+    m = np.sqrt((gx * gx + gy * gy).astype(np.float64))
+    ux, uy = gx / m, gy / m
+    acc = np.zeros(nb * hs * ws, np.int64)
+    for sign in (1.0, -1.0):
+        X = np.floor(x[:, None] - sign * rho[None, :] * ux[:, None] + 0.5)
+        Y = np.floor(y[:, None] - sign * rho[None, :] * uy[:, None] + 0.5)
+        ok = (X >= 0) & (X < ws) & (Y >= 0) & (Y < hs)
+        B = np.broadcast_to(rb[None, :], X.shape)
+        idx = (B[ok] * hs + Y[ok].astype(np.int64)) * ws + X[ok].astype(np.int64)
+        acc += np.bincount(idx, minlength=nb * hs * ws)
+    acc = acc.reshape(nb, hs, ws)
+    # 3 x 3 box sum per bin (zeros outside), then each bin with the next one
+    P = np.zeros((nb + 1, hs + 2, ws + 2), np.int64)
+    P[:nb, 1:-1, 1:-1] = acc
+    box = sum(P[:, i:i + hs, j:j + ws] for i in range(3) for j in range(3))
+    work = box[:nb] + box[1:nb + 1]
+    cands = []
+    sup = 0.5 * lo
+    yy, xx = np.indices((hs, ws))
+    best = None
+    start = [bins.index(b) + lo for b in range(nb)] + [hi + 1]
+    for _ in range(p["candidates"]):
+        k = int(np.argmax(work))
+        v = int(work.flat[k])
+        if v <= 0 or (best is not None and v < p["cand_frac"] * best):
+            break
+        best = v if best is None else best
+        b, rest = divmod(k, hs * ws)
+        Yc, Xc = divmod(rest, ws)
+        r_s = _radius_vote(x, y, gx, gy, Xc, Yc, start[b], start[min(b + 2, nb)] - 1)
+        if r_s is not None:
+            off = (s - 1) / 2.0
+            cands.append((Xc * s + off, Yc * s + off, r_s * s, v))
+        # suppress this peak's neighbourhood (centres closer than half the smallest radius)
+        d2 = (xx - Xc) ** 2 + (yy - Yc) ** 2
+        work[:, d2 <= sup * sup] = 0
+    return cands, s
+
+
+def _radius_vote(x, y, gx, gy, Xc, Yc, lo, hi):
+    """Radius (reduced pixels) around centre (Xc, Yc): histogram of the distances of the edge
+    pixels whose gradient points along the radius (within about 25 degrees), smoothed 1-2-1."""
+    dx, dy = x - Xc, y - Yc
+    d2 = dx * dx + dy * dy
+    dot = dx * gx + dy * gy
+    m2 = gx * gx + gy * gy
+    radial = 100 * dot * dot >= 81 * d2 * m2
+    b = np.floor(np.sqrt(d2[radial].astype(np.float64)) + 0.5).astype(np.int64)
+    b = b[(b >= lo) & (b <= hi)]
+    if b.size == 0:
+        return None
+    hist = np.bincount(b - lo, minlength=hi - lo + 1)
+    hp = np.concatenate([[0], hist, [0]])
+    sm = hp[:-2] + 2 * hp[1:-1] + hp[2:]
+    i = int(np.argmax(sm))
+    return float(lo + i)
+
+
+# ---- sphere-crop-v2: fine stage -------------------------------------------------------------
+
+def _ray_dirs(k):
+    """Unit directions of k rays (k a multiple of 8), angle 2 pi i / k, from a Taylor series
+    (the same float64 operations in C++; no libm)."""
+    q = k // 8
+    base = []
+    for i in range(q + 1):
+        t = (math.pi / 4) * i / q  # pi/4 * i / q, in [0, pi/4]
+        t2 = t * t
+        c, s_ = 1.0, t
+        term_c, term_s = 1.0, t
+        for n in range(1, 12):
+            term_c = -term_c * t2 / ((2 * n - 1) * (2 * n))
+            term_s = -term_s * t2 / ((2 * n) * (2 * n + 1))
+            c += term_c
+            s_ += term_s
+        base.append((c, s_))
+    dirs = []
+    for i in range(k):
+        octant, j = divmod(i, q)
+        if octant % 2 == 0:
+            c, s_ = base[j]
+        else:
+            s_, c = base[q - j]
+        # rotate the first-quadrant pair into its quadrant (exact sign flips and swaps)
+        quad = octant // 2
+        if quad == 0:
+            dirs.append((c, s_))
+        elif quad == 1:
+            dirs.append((-s_, c))
+        elif quad == 2:
+            dirs.append((-c, -s_))
+        else:
+            dirs.append((s_, -c))
+    return np.array(dirs, np.float64)
+
+
+def _sample(img, X, Y):
+    """Bilinear samples [..., 3] (float64) of img at (X, Y); NaN where a corner lies outside."""
+    h, w = img.shape[:2]
+    x0, y0 = np.floor(X), np.floor(Y)
+    fx, fy = X - x0, Y - y0
+    ok = (x0 >= 0) & (y0 >= 0) & (x0 <= w - 2) & (y0 <= h - 2)
+    xi = np.where(ok, x0, 0).astype(np.int64)
+    yi = np.where(ok, y0, 0).astype(np.int64)
+    p00 = img[yi, xi].astype(np.float64)
+    p01 = img[yi, xi + 1].astype(np.float64)
+    p10 = img[yi + 1, xi].astype(np.float64)
+    p11 = img[yi + 1, xi + 1].astype(np.float64)
+    fx, fy = fx[..., None], fy[..., None]
+    top = p00 + fx * (p01 - p00)
+    bot = p10 + fx * (p11 - p10)
+    v = top + fy * (bot - top)
+    v[~ok] = np.nan
+    return v
+
+
+def _ray_edges(img, dirs, cx, cy, r, win, p):
+    """Edge candidates along each ray from (cx, cy): the local maxima, of at least ray_edge_min,
+    of the colour step (max over channels of |difference of the samples 1 px apart|, samples
+    every half pixel) within [r - win, r + win], sub-pixel (parabola). Returns a list per ray of
+    distances from (cx, cy); None for a ray that leaves the frame."""
+    m = int(math.floor(win * 2.0))
+    n = 2 * m + 1
+    j = np.arange(-1, n + 1, dtype=np.float64)  # one extra sample each side for the differences
+    rho = r + (j - m) * 0.5
+    X = cx + rho[None, :] * dirs[:, 0:1]
+    Y = cy + rho[None, :] * dirs[:, 1:2]
+    v = _sample(img, X, Y)  # [K, n + 2, 3]
+    d = np.abs(v[:, 2:, :] - v[:, :-2, :])  # [K, n, 3], centred on samples 0..n-1
+    score = np.maximum(np.maximum(d[:, :, 0], d[:, :, 1]), d[:, :, 2])
+    bad = np.isnan(score).any(axis=1)
+    score = np.where(np.isnan(score), 0.0, score)
+    c, a_, b_ = score[:, 1:-1], score[:, :-2], score[:, 2:]
+    peak = (c >= p["ray_edge_min"]) & (c >= a_) & (c > b_) & ~bad[:, None]
+    den = a_ - 2.0 * c + b_
+    off = np.where(den < 0.0, 0.5 * (a_ - b_) / np.where(den < 0.0, den, -1.0), 0.0)
+    pos = rho[None, 2:-2] + off * 0.5
+    return [None if bad[k] else pos[k][peak[k]].tolist() for k in range(len(dirs))]
+
+
+def _seqsum(a):
+    """Sum in index order (as a C loop), not numpy's pairwise order."""
+    t = 0.0
+    for v in a:
+        t += v
+    return t
+
+
+def _median(vals):
+    s = sorted(vals)
+    n = len(s)
+    return (s[(n - 1) // 2] + s[n // 2]) / 2.0
+
+
+def _kasa(x, y, wts):
+    """Weighted algebraic circle fit of x^2 + y^2 = A x + B y + C: (cx, cy, r) or None."""
+    sw = sxx = syy = sxy = sx = sy = sxz = syz = sz = 0.0
+    for i in range(len(x)):
+        wi = wts[i]
+        if wi == 0.0:
+            continue
+        xi, yi = x[i], y[i]
+        zi = xi * xi + yi * yi
+        sw += wi
+        sx += wi * xi
+        sy += wi * yi
+        sxx += wi * xi * xi
+        syy += wi * yi * yi
+        sxy += wi * xi * yi
+        sxz += wi * xi * zi
+        syz += wi * yi * zi
+        sz += wi * zi
+    sol = _solve3([[sxx, sxy, sx], [sxy, syy, sy], [sx, sy, sw]], [sxz, syz, sz])
+    if sol is None:
+        return None
+    A, B, C = sol
+    cx, cy = A / 2.0, B / 2.0
+    rr = C + cx * cx + cy * cy
+    if not rr > 0.0:
+        return None
+    return cx, cy, math.sqrt(rr)
+
+
+def _fit_rays(cands, dirs, ox, oy, cx, cy, r, p):
+    """Robust circle through one edge candidate per ray: each iteration takes, on every ray, the
+    candidate nearest the current circle, weights it by Tukey's biweight of its distance to that
+    circle (scale from the median distance) and refits (algebraic fit, coordinates about the ray
+    origin (ox, oy)). Returns (cx, cy, r, residuals of the chosen points) or None."""
+    K = len(dirs)
+    cx, cy = cx - ox, cy - oy
+    res = []
+    for it in range(p["irls_iters"]):
+        xs, ys, res = [], [], []
+        for k in range(K):
+            if not cands[k]:
+                continue
+            ux, uy = float(dirs[k, 0]), float(dirs[k, 1])
+            best, be = 0.0, -1.0
+            for rho in cands[k]:
+                px, py = rho * ux, rho * uy
+                e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
+                if be < 0.0 or abs(e) < be:
+                    best, be, bres = rho, abs(e), e
+            xs.append(best * ux)
+            ys.append(best * uy)
+            res.append(bres)
+        if len(xs) < 8:
+            return None
+        sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(e) for e in res]))
+        cut = p["tukey_c"] * sigma
+        wts = []
+        for e in res:
+            u = e / cut
+            wts.append((1.0 - u * u) * (1.0 - u * u) if -1.0 < u < 1.0 else 0.0)
+        fit = _kasa(xs, ys, wts)
+        if fit is None:
+            return None
+        cx, cy, r = fit
+    return cx + ox, cy + oy, r, res
+
+
+def _solve3(M, v):
+    """Cramer's rule for a 3 x 3 system (fixed operation order); None when singular."""
+    (a, b, c), (d, e, f), (g, h, i) = M
+    co0 = e * i - f * h
+    co1 = f * g - d * i
+    co2 = d * h - e * g
+    det = a * co0 + b * co1 + c * co2
+    if not abs(det) > 1e-300:
+        return None
+    p_, q, r_ = v
+    x0 = (p_ * co0 + b * (f * r_ - q * i) + c * (q * h - e * r_)) / det
+    x1 = (a * (q * i - f * r_) + p_ * co1 + c * (d * r_ - q * g)) / det
+    x2 = (a * (e * r_ - q * h) + b * (q * g - d * r_) + p_ * co2) / det
+    return x0, x1, x2
+
+
+def _consensus(cands, dirs, r, win, step):
+    """The circle most rays agree on, near the rays' origin: for each centre shift (dx, dy) on a
+    grid of `step` px within +-win, each ray's edge candidates give radii rho - (dx, dy) . u (to
+    first order); the (shift, radius bin of `step` px) holding the most candidates wins (first
+    in grid order, then bin order, on ties). Returns (dx, dy, r) or None."""
+    W = int(math.floor(win / step))
+    base = r - (W * step + win) - step
+    nb = int(math.floor(2.0 * (W * step + win) / step)) + 3
+    ks = [k for k in range(len(dirs)) for _ in (cands[k] or ())]
+    if not ks:
+        return None
+    rho = np.array([c for k in range(len(dirs)) for c in (cands[k] or ())], np.float64)
+    ux, uy = dirs[ks, 0], dirs[ks, 1]
+    g = np.arange(-W, W + 1, dtype=np.float64) * step
+    DY, DX = np.meshgrid(g, g, indexing="ij")
+    dot = DX.reshape(-1, 1) * ux[None, :] + DY.reshape(-1, 1) * uy[None, :]
+    bi = np.floor(((rho[None, :] - dot) - base) / step).astype(np.int64)
+    ok = (bi >= 0) & (bi < nb)
+    G = dot.shape[0]
+    flat = (np.arange(G)[:, None] * nb + bi)[ok]
+    hist = np.bincount(flat, minlength=G * nb)
+    i = int(np.argmax(hist))
+    if hist[i] <= 0:
+        return None
+    gi, b_ = divmod(i, nb)
+    dy, dx = divmod(gi, 2 * W + 1)
+    return (dx - W) * step, (dy - W) * step, base + (b_ + 0.5) * step
+
+
+def _fine(img, dirs, cand, s, p):
+    """Refine a coarse circle: (cx, cy, r, support) or None; support is the fraction of the
+    rays inside the frame with an edge within inlier_px of the circle."""
+    cx, cy, r = cand[:3]
+    for ps in range(p["fine_passes"]):
+        win = p["consensus_cells"] * s + p["consensus_px"] if ps == 0 else p["fine_window_px"] + p["fine_window_frac"] * r
+        cands = _ray_edges(img, dirs, cx, cy, r, win, p)
+        sx, sy, sr = cx, cy, r
+        if ps == 0:
+            c = _consensus(cands, dirs, r, win, p["consensus_step_px"])
+            if c is None:
+                return None
+            sx, sy, sr = cx + c[0], cy + c[1], c[2]
+        fit = _fit_rays(cands, dirs, cx, cy, sx, sy, sr, p)
+        if fit is None or not fit[2] > 1.0:
+            return None
+        cx, cy, r, _ = fit
+    return cx, cy, r, _support(img, dirs, cx, cy, r, p)
+
+
+def _support(img, dirs, cx, cy, r, p):
+    """Fraction of all rays from (cx, cy) that cross an edge within inlier_px of radius r (rays
+    leaving the frame count as without: a circle mostly outside the frame is no sphere)."""
+    cands = _ray_edges(img, dirs, cx, cy, r, p["inlier_px"] + 1.0, p)
+    n = 0
+    for c in cands:
+        if c is not None and any(abs(rho - r) <= p["inlier_px"] for rho in c):
+            n += 1
+    return n / len(dirs)
+
+
+def rim_outside(cx, cy, r, h, w, k=256):
+    """Fraction of the circle's rim outside the frame [0, w - 1] x [0, h - 1] (k points)."""
+    d = _ray_dirs(k)
+    X = cx + r * d[:, 0]
+    Y = cy + r * d[:, 1]
+    out = (X < 0) | (X > w - 1) | (Y < 0) | (Y > h - 1)
+    return int(out.sum()) / k
+
+
+def _find_sphere_v2(frame, p, camera=None):
+    h, w = frame.shape[:2]
+    rmin, rmax = radius_range(h, w, p, camera)
+    cands, s = _coarse(frame, p, rmin, rmax)
+    dirs = _ray_dirs(p["rays"])
+    found = []
+    for c in cands:
+        f = _fine(frame, dirs, c, s, p)
+        if f is not None and f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1:
+            found.append(f)
+    if not found:
+        raise NoSphere("no sphere found in frame")
+    # the best supported circle is the sphere (circles about its centre are its texture);
+    # another well supported one of about its size elsewhere is a second sphere, and which
+    # one to measure is not ours to guess
+    order = sorted(range(len(found)), key=lambda i: (-found[i][3], i))
+    a = found[order[0]]
+    for i in order[1:]:
+        b = found[i]
+        if (a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 < (0.5 * a[2]) ** 2:
+            continue
+        if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]):
+            raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
+                           f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
+    cx, cy, r, _ = a
+    cut = rim_outside(cx, cy, r, h, w)
+    if cut > p["max_cut"]:
+        raise NoSphere(f"sphere cut by the frame edge ({100 * cut:.0f} % of its rim outside the frame, "
+                       f"at most {100 * p['max_cut']:.0f} %)")
+    return cx, cy, r
+
+
+# ---- the public steps -----------------------------------------------------------------------
+
+def find_sphere(frame, p=None, camera=None):
+    """(cx, cy, r, bg) of the sphere in a BGR uint8 frame (OpenCV pixel coordinates: pixel
+    centres at integers); bg is v1's background colour, v2's fill colour. NoSphere says why
+    there is none. v2 expects an undistorted frame (see undistort, crop_frame)."""
+    p = p or DEFAULTS
+    frame = _as_bgr(frame)
+    if p["name"] == NAME_V1:
+        return _find_sphere_v1(frame, p)
+    cx, cy, r = _find_sphere_v2(frame, p, camera)
+    return cx, cy, r, np.asarray(p["fill"], np.float64)
+
+
 def crop(frame, cx, cy, r, bg, p=None):
-    """Square crop around the circle, outside filled with bg, resized to size x size (steps 6-7)."""
+    """Square crop around the circle, outside the frame filled with bg, resized to size x size;
+    v2 also fills everything farther than r (1 + mask_frac) from the centre."""
     p = p or DEFAULTS
     frame = _as_bgr(frame)
     h, w = frame.shape[:2]
@@ -99,7 +702,33 @@ def crop(frame, cx, cy, r, bg, p=None):
     fill = [int(np.clip(math.floor(v + 0.5), 0, 255)) for v in bg]
     padded = cv2.copyMakeBorder(frame, pad_t, pad_b, pad_l, pad_r, cv2.BORDER_CONSTANT, value=fill)
     roi = padded[y0 + pad_t:y0 + pad_t + side, x0 + pad_l:x0 + pad_l + side]
-    return cv2.resize(roi, (p["size"], p["size"]), interpolation=cv2.INTER_AREA)
+    out = cv2.resize(roi, (p["size"], p["size"]), interpolation=cv2.INTER_AREA)
+    if p["name"] == NAME_V2:
+        out[_outside_mask(cx, cy, r, x0, y0, side, p)] = fill
+    return out
+
+
+def _outside_mask(cx, cy, r, x0, y0, side, p):
+    """Output pixels whose centre, mapped back into the frame, lies farther than
+    r (1 + mask_frac) from the circle's centre."""
+    S = p["size"]
+    scale = side / S
+    u = (np.arange(S, dtype=np.float64) + 0.5) * scale - 0.5
+    dx = (x0 + u) - cx
+    dy = (y0 + u) - cy
+    rm = r * (1.0 + p["mask_frac"])
+    return (dy * dy)[:, None] + (dx * dx)[None, :] > rm * rm
+
+
+def crop_frame(frame, p=None, camera=None):
+    """Steps up to the crop: (BGR uint8 size x size crop, (cx, cy, r)) of a frame; with a camera,
+    undistorted first (v2)."""
+    p = p or DEFAULTS
+    frame = _as_bgr(frame)
+    if camera is not None and p["name"] == NAME_V2:
+        frame = undistort(frame, camera)
+    cx, cy, r, bg = find_sphere(frame, p, camera)
+    return crop(frame, cx, cy, r, bg, p), (cx, cy, r)
 
 
 def normalise(crop_bgr, p=None):
@@ -110,14 +739,13 @@ def normalise(crop_bgr, p=None):
     return np.ascontiguousarray(rgb.transpose(2, 0, 1))
 
 
-def preprocess(frame, p=None):
+def preprocess(frame, p=None, camera=None):
     """Full frame (BGR uint8) -> float32 [3, size, size] network input."""
     p = p or DEFAULTS
-    cx, cy, r, bg = find_sphere(frame, p)
-    return normalise(crop(frame, cx, cy, r, bg, p), p)
+    return normalise(crop_frame(frame, p, camera)[0], p)
 
 
-def preprocess_file(path, p=None):
+def preprocess_file(path, p=None, camera=None):
     """Read an image file and preprocess it; errors name the file."""
     frame = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if frame is None:
@@ -125,6 +753,6 @@ def preprocess_file(path, p=None):
     if frame.dtype != np.uint8:
         raise ValueError(f"{path}: expected 8-bit pixels, got {frame.dtype}")
     try:
-        return preprocess(frame, p)
+        return preprocess(frame, p, camera)
     except NoSphere as e:
         raise NoSphere(f"{path}: {e}") from None

@@ -28,7 +28,7 @@ def build(variant="good", seed=7):
     """An onnx.ModelProto of the given variant."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
-    pp = dict(preprocess.DEFAULTS)
+    pp = preprocess.params({"name": preprocess.NAME_V1})
     if variant == "size64":
         pp["size"] = 64
     S = pp["size"]

@@ -1,0 +1,129 @@
+"""Sphere localisation accuracy of the preprocessing (sphere-crop-v1 / v2) on rig-like frames.
+
+Frames: the project's VTK renderer (`sim`) draws the sphere at random poses, principal-point
+offsets and focal scales on black and on white; training/rigcomposite.py lays it over a
+cluttered background with a mounting post (random side, mostly below), vignetting, gamma,
+noise and JPEG. The true circle follows from the camera model. Or, with --truth, frames with a
+truth.jsonl (sim dataset --scene, or any generator writing that file).
+
+    python bench/localise.py --frames 60 --seed 1 [--camera] [--out frames/]
+    python bench/localise.py --truth DIR/truth.jsonl [--camera-file CAM.json]
+
+Prints, per algorithm, centre error (px) and radius error (%) median / p95 / max, and how many
+frames raised an error. --camera passes the camera (expected radius) to v2.
+"""
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from training import preprocess as pp  # noqa: E402
+from training import rigcomposite as rc  # noqa: E402
+
+
+def composite_frames(n, seed, texture, out=None):
+    """Yield (BGR frame, (cx, cy, r) OpenCV coordinates, camera) for n composite rig frames."""
+    from sim.camera import Camera
+    from sim.render import Renderer, load_texture
+    cam = Camera()
+    rend = Renderer(load_texture(texture), cam)
+    rng = np.random.default_rng(seed)
+    R, D = cam.radius_mm, cam.distance_mm
+    for i in range(n):
+        pose = rng.uniform(-30, 30, 3)
+        scale = float(rng.uniform(0.87, 1.13))
+        r = cam.focal_px * scale * R / math.sqrt(D * D - R * R)
+        du = float(rng.uniform(-(cam.width / 2 - r - 4), cam.width / 2 - r - 4))
+        dv = float(rng.uniform(-(cam.height / 2 - r - 4), cam.height / 2 - r - 4)) if cam.height / 2 > r + 4 else 0.0
+        on_b = cv2.cvtColor(rend.render(pose, background=(0, 0, 0), offset_px=(du, dv), scale=scale), cv2.COLOR_RGB2BGR)
+        on_w = cv2.cvtColor(rend.render(pose, background=(255, 255, 255), offset_px=(du, dv), scale=scale),
+                            cv2.COLOR_RGB2BGR)
+        cx, cy = cam.width / 2 + du - 0.5, cam.height / 2 + dv - 0.5
+        img = rc.rig_frame(on_b, on_w, cx, cy, r, rng)
+        if out is not None:
+            name = f"rig_{i:04d}.png"
+            cv2.imwrite(str(Path(out) / name), img)
+            with open(Path(out) / "truth.jsonl", "a") as f:
+                f.write(json.dumps({"file": name, "pose": [float(v) for v in pose],
+                                    "circle": [cx + 0.5, cy + 0.5, r]}) + "\n")
+        yield img, (cx, cy, r), cam.to_dict() | {"_scale": scale}
+
+
+def truth_frames(path):
+    root = Path(path).parent
+    for line in Path(path).read_text().splitlines():
+        t = json.loads(line)
+        img = cv2.imread(str(root / t["file"]), cv2.IMREAD_COLOR)
+        cx, cy, r = t["circle"]
+        yield img, (cx - 0.5, cy - 0.5, r), None
+
+
+def summarise(name, errs, fails, n, ms):
+    e = np.array(errs) if errs else np.zeros((0, 2))
+    if len(e):
+        c, rr = e[:, 0], e[:, 1]
+        print(f"{name}: {len(e)}/{n} frames; centre px median {np.median(c):.3f} p95 {np.percentile(c, 95):.3f} "
+              f"max {c.max():.3f}; radius % median {np.median(rr):.3f} p95 {np.percentile(rr, 95):.3f} "
+              f"max {rr.max():.3f}; errors raised {fails}; {ms:.1f} ms/frame (Python)")
+    else:
+        print(f"{name}: no frame answered; errors raised {fails}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=40, help="composite frames (default 40)")
+    ap.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
+    ap.add_argument("--texture", default=str(ROOT / "build/textures/Texture_3_color.png"),
+                    help="sphere texture (default build/textures/Texture_3_color.png)")
+    ap.add_argument("--camera", action="store_true", help="give v2 the camera (expected radius +-15 %%)")
+    ap.add_argument("--truth", help="truth.jsonl of existing frames instead of composites")
+    ap.add_argument("--camera-file", help="camera file for --truth frames (undistortion, radius)")
+    ap.add_argument("--out", help="also write the composite frames here")
+    ap.add_argument("--verbose", action="store_true", help="each frame's errors (stderr)")
+    ap.add_argument("--v1", action="store_true", help="measure sphere-crop-v1 too")
+    args = ap.parse_args(argv)
+    if args.out:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+        (Path(args.out) / "truth.jsonl").unlink(missing_ok=True)
+    if args.truth:
+        frames = truth_frames(args.truth)
+    else:
+        frames = composite_frames(args.frames, args.seed, args.texture, args.out)
+    cam_file = json.loads(Path(args.camera_file).read_text()) if args.camera_file else None
+    algos = [("sphere-crop-v2", pp.params())] + ([("sphere-crop-v1", pp.params({"name": pp.NAME_V1}))]
+                                                if args.v1 else [])
+    res = {a: ([], 0, 0.0) for a, _ in algos}
+    n = 0
+    for img, (cx, cy, r), cam in frames:
+        n += 1
+        for a, p in algos:
+            errs, fails, t = res[a]
+            camera = cam_file if cam_file is not None else (cam if args.camera else None)
+            if camera is not None and "_scale" in camera:
+                camera = {k: v for k, v in camera.items() if k != "_scale"}
+            t0 = time.perf_counter()
+            try:
+                frame = pp.undistort(img, camera) if camera is not None and a == "sphere-crop-v2" else img
+                fx, fy, fr, _ = pp.find_sphere(frame, p, camera) if a == "sphere-crop-v2" else pp.find_sphere(img, p)
+                errs.append((math.hypot(fx - cx, fy - cy), abs(fr / r - 1) * 100))
+                if args.verbose:
+                    print(f"frame {n - 1}: {a}: centre {errs[-1][0]:.3f} px, radius {errs[-1][1]:.3f} %", file=sys.stderr)
+            except pp.NoSphere as e:
+                fails += 1
+                print(f"frame {n - 1}: {a}: {e}", file=sys.stderr)
+            res[a] = (errs, fails, t + time.perf_counter() - t0)
+    for a, _ in algos:
+        errs, fails, t = res[a]
+        summarise(a, errs, fails, n, 1000 * t / max(1, n))
+
+
+if __name__ == "__main__":
+    main()
