@@ -38,14 +38,15 @@ class EngineError(RuntimeError):
 
 
 @contextlib.contextmanager
-def connect(address=None, num_cpus=None):
+def connect(address=None, num_cpus=None, log_to_driver=False):
     """Ray connected for the duration of the block: the cluster at `address` (or RAY_ADDRESS),
-    else a private local instance with `num_cpus` CPUs that is shut down at the end."""
+    else a private local instance with `num_cpus` CPUs that is shut down at the end.
+    log_to_driver: the tasks' output on this process's stdout and stderr (off: the progress bar's)."""
     address = address or os.environ.get("RAY_ADDRESS") or None
     if address:
         _token_auth_if_token()      # before Ray is imported: it reads the mode once
     import ray
-    kw = dict(logging_level=logging.WARNING, log_to_driver=False, include_dashboard=False)
+    kw = dict(logging_level=logging.WARNING, log_to_driver=log_to_driver, include_dashboard=False)
     try:
         if address:
             ray.init(address=address, **kw)

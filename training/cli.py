@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.engine_ray import EngineError
+
 from . import metrics as M
 from . import preprocess as pp
 from .data import DatasetError
@@ -64,6 +66,13 @@ def get_args_parser():
     s.add_argument("--arch", default=None, choices=ARCHS, help="override the profile's network")
     s.add_argument("--epochs", type=int, default=None, help="override the profile's epochs")
     s.add_argument("--seed", type=int, default=0, help="seed for datasets and training")
+    s.add_argument("--engine", default="local", choices=("local", "ray"),
+                   help="local: the runs one after another here; ray: each run a Ray task (docs/cluster.md)")
+    s.add_argument("--ray-address", default=None,
+                   help="with --engine ray: the cluster to join (default: RAY_ADDRESS, else a local Ray instance)")
+    s.add_argument("--run-cpus", type=int, default=1,
+                   help="with --engine ray: CPUs per run (its threads and worker processes); a run on CUDA "
+                        "also takes one GPU")
     add_common_arguments(s)
     return parser
 
@@ -133,6 +142,9 @@ def main(argv=None):
     except (DatasetError, ExportMismatch, pp.NoSphere, ValueError) as e:
         print(f"posetrain: error: {e}", file=sys.stderr)
         return 2
+    except EngineError as e:    # the cluster, not the arguments
+        print(f"posetrain: error: {e}", file=sys.stderr)
+        return 1
     return 0
 
 

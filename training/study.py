@@ -107,35 +107,47 @@ def run_study(args):
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     tdir, textures = ensure_textures(args, out)
-    results, timings = {}, {}
-    for tex in textures:
-        ds = out / "datasets" / tex
-        run = out / "runs" / tex
-        t_tex = time.time()
-        cam = []
-        if prof.get("camera"):
-            cam_file = out / f"camera_{args.profile}.json"
-            cam_file.write_text(json.dumps(prof["camera"]) + "\n")
-            cam = ["--camera", str(cam_file)]
-        _run([sys.executable, "-m", "sim.cli", "dataset", "--texture", str(tdir / f"{tex}.png"), "--out", str(ds),
-              "--seed", str(args.seed), "--quiet", *cam, *prof["dataset"]], out / "study.log")
-        if (run / "metrics.json").exists() and (run / "run.json").exists():
-            print(f"study: {tex}: finished run found in {run}, not retrained", flush=True)
-        else:
-            ck = run / "checkpoint.pth"
-            opts = options(ds, run, texture=tex, arch=prof["arch"], size=prof["size"], epochs=prof["epochs"],
-                           batch_size=prof["batch_size"], seed=args.seed, device=args.device,
-                           threads=args.threads, workers=args.workers, progress=args.progress,
-                           cache=args.cache, resume=str(ck) if ck.exists() else None)
-            try:
-                train(opts)
-            except ExportMismatch as e:  # metrics are written; the report says the export failed
-                print(f"study: {tex}: error: {e}", file=sys.stderr, flush=True)
-                (run / "export_error.txt").write_text(str(e) + "\n")
-        results[tex] = json.loads((run / "metrics.json").read_text())
-        timings[tex] = json.loads((run / "run.json").read_text())
-        timings[tex]["study_s"] = round(time.time() - t_tex, 1)
+    cam = []
+    if prof.get("camera"):
+        cam_file = out / f"camera_{args.profile}.json"
+        cam_file.write_text(json.dumps(prof["camera"]) + "\n")
+        cam = ["--camera", str(cam_file)]
+    if getattr(args, "engine", "local") == "ray":   # each texture's run a Ray task (study_ray.py)
+        from .study_ray import run_textures
+        done = run_textures(textures, tdir, out, prof, cam, args)
+    else:
+        done = {tex: run_texture(tex, tdir, out, prof, cam, args) for tex in textures}
+    results = {tex: done[tex][0] for tex in textures}
+    timings = {tex: done[tex][1] for tex in textures}
     write_report(out, args.profile, prof, textures, results, timings, time.time() - t0)
+
+
+def run_texture(tex, tdir, out, prof, cam, args, workers=None):
+    """One texture: its dataset (resumed), its training (skipped when finished, else resumed from
+    its checkpoint) and evaluation; returns (metrics, timings). workers: the dataset's --workers
+    (None: every core)."""
+    ds = out / "datasets" / tex
+    run = out / "runs" / tex
+    t_tex = time.time()
+    _run([sys.executable, "-m", "sim.cli", "dataset", "--texture", str(tdir / f"{tex}.png"), "--out", str(ds),
+          "--seed", str(args.seed), "--quiet", *cam, *prof["dataset"],
+          *(["--workers", str(workers)] if workers else [])], out / "study.log")
+    if (run / "metrics.json").exists() and (run / "run.json").exists():
+        print(f"study: {tex}: finished run found in {run}, not retrained", flush=True)
+    else:
+        ck = run / "checkpoint.pth"
+        opts = options(ds, run, texture=tex, arch=prof["arch"], size=prof["size"], epochs=prof["epochs"],
+                       batch_size=prof["batch_size"], seed=args.seed, device=args.device,
+                       threads=args.threads, workers=args.workers, progress=args.progress,
+                       cache=args.cache, resume=str(ck) if ck.exists() else None)
+        try:
+            train(opts)
+        except ExportMismatch as e:  # metrics are written; the report says the export failed
+            print(f"study: {tex}: error: {e}", file=sys.stderr, flush=True)
+            (run / "export_error.txt").write_text(str(e) + "\n")
+    timing = json.loads((run / "run.json").read_text())
+    timing["study_s"] = round(time.time() - t_tex, 1)
+    return json.loads((run / "metrics.json").read_text()), timing
 
 
 def _order(textures, results, split):
