@@ -12,6 +12,8 @@ sim/scene_background.py fills the background; sim/scene_effects.py does the
 camera's optics, sensor and encoding. params["circle"] is the sphere's outline
 in the undistorted frame (conventions' continuous pixels).
 """
+import json
+
 from sim.render import Light, Renderer
 from sim.scene import draw, margin_for
 from sim.scene_background import make_background
@@ -27,6 +29,7 @@ class SceneRenderer:
         self.camera = scene.camera
         self.renderer = Renderer(texture, scene.camera, alpha=True, margin=margin_for(scene), gl=gl)
         self.mount = Mount(self.renderer)
+        self._background = (None, None)  # (draw, image) of the last frame: a fixed rig's is made once
 
     def render(self, pose, params):
         """uint8 RGB frame of the sphere at `pose` (degrees) with the values of draw `params`."""
@@ -38,8 +41,11 @@ class SceneRenderer:
         rgba = self.renderer.render(pose, lights=lights, background=(0, 0, 0), offset_px=params["offset_px"],
                                     scale=c["focal_px"] / cam.focal_px, distance_mm=c["distance_mm"],
                                     principal=c["principal_px"], distortion=c["distortion"])
-        bg = make_background(params["background"], self.scene.background, self.scene.photos,
-                             cam.width, cam.height)
+        key = json.dumps(params["background"], sort_keys=True)
+        if self._background[0] != key:
+            self._background = (key, make_background(params["background"], self.scene.background,
+                                                     self.scene.photos, cam.width, cam.height))
+        bg = self._background[1]  # read only from here on
         return finish(rgba, bg, params["image"], c["principal_px"])
 
     def frame(self, pose, rng):
