@@ -101,6 +101,15 @@ def _odd(x, cap):
     return int(min(cap, max(1, 2 * int(np.floor(x / 2.0)) + 1)))
 
 
+def _xyz_of_srgb8(rgb):
+    """CIE XYZ (D65), float32, of 8-bit sRGB values: skimage's rgb2xyz (same curve, same matrix)
+    through a 256-entry table of linear light."""
+    from skimage.color.colorconv import xyz_from_rgb
+    v = np.arange(256) / 255.0
+    lin = np.where(v > 0.04045, ((v + 0.055) / 1.055) ** 2.4, v / 12.92).astype(np.float32)
+    return lin[rgb] @ xyz_from_rgb.T.astype(np.float32)
+
+
 def camera_texture(rgb, size=VIEW_PX):
     """Lab texture [h, w, 3] float32 of an sRGB uint8 texture as view pixels of `size` see it.
 
@@ -111,30 +120,41 @@ def camera_texture(rgb, size=VIEW_PX):
     texels, centred, and wrap in longitude, so a longitude period of whole
     texels survives exactly (twins stay twins, U = 0). Textures wider than
     TEX_MAX_WIDTH are first averaged over f x f blocks (f the smallest whole
-    factor that fits).
+    factor that fits). Rows are converted in chunks, so memory stays near a
+    few float32 copies of the (reduced) texture.
     """
-    from skimage.color import rgb2xyz, xyz2lab
-    import cv2
+    from skimage.color import xyz2lab
     h, w = rgb.shape[:2]
     f = int(np.ceil(w / TEX_MAX_WIDTH))
-    xyz = rgb2xyz(np.asarray(rgb, np.float64) / 255.0)
-    if f > 1:
-        xyz = cv2.resize(xyz, (w // f, h // f), interpolation=cv2.INTER_AREA)
-        h, w = xyz.shape[:2]
+    hr, wr = h // f, w // f
+    if h % f == 0 and w % f == 0:
+        xyz = np.empty((hr, wr, 3), np.float32)
+        step = max(1, 256 // f) * f
+        for r0 in range(0, h, step):
+            chunk = _xyz_of_srgb8(rgb[r0:r0 + step])
+            n = chunk.shape[0] // f
+            xyz[r0 // f:r0 // f + n] = chunk.reshape(n, f, wr, f, 3).mean((1, 3)) if f > 1 else chunk
+    else:   # no whole factor fits: area resampling (a period then survives only approximately)
+        import cv2
+        xyz = cv2.resize(_xyz_of_srgb8(rgb), (wr, hr), interpolation=cv2.INTER_AREA)
+    h, w = hr, wr
     pitch = np.degrees(2.0 / size)                     # view pixel footprint at the disc centre, degrees
     lat = 90.0 - (np.arange(h) + 0.5) / h * 180.0
     k_lat = _odd(pitch / (180.0 / h), h if h % 2 else h - 1)
     k_lon = np.array([_odd(pitch / max(np.cos(np.radians(la)), 1e-6) / (360.0 / w), w if w % 2 else w - 1)
                       for la in lat])
-    out = np.empty_like(xyz)
     for c in range(3):
-        ch = xyz[..., c]
+        ch = xyz[..., c].astype(np.float64)
         rows = np.empty_like(ch)
         for k in np.unique(k_lon):
             sel = k_lon == k
             rows[sel] = _box_wrap(ch[sel], k)
-        out[..., c] = _box_clamp(rows, k_lat)
-    return xyz2lab(np.clip(out, 0.0, None)).astype(np.float32)
+        xyz[..., c] = _box_clamp(rows, k_lat)
+    np.clip(xyz, 0.0, None, out=xyz)
+    lab = np.empty_like(xyz)
+    for r0 in range(0, h, 256):
+        lab[r0:r0 + 256] = xyz2lab(xyz[r0:r0 + 256].astype(np.float64))
+    return lab
 
 
 def pose_grid(limit=30.0, step=3.0):
