@@ -27,14 +27,14 @@ META_CONFIDENCE = "spherepose.confidence"
 
 # The algorithm's parameters: one source, copied into host/src/refine.h (a unit test compares).
 LEVELS = 3            # frame and texture pyramid levels, coarse to fine (2x2 box reductions)
-ITERS = (3, 2, 1)     # Gauss-Newton steps per level, coarse to fine
+ITERS = (5, 2, 1)     # Levenberg-Marquardt steps per level, coarse to fine
 STRIDES = (2, 2, 4)   # sample every STRIDE-th row and column of each level, coarse to fine
 RESIDUAL_LEVEL = 1    # the level whose pixels give the residual (0 finest) ...
 RESIDUAL_STRIDE = 2   # ... every RESIDUAL_STRIDE-th row and column of it
 RHO_MAX = 0.92        # pixels used: centre within RHO_MAX * r of the circle's centre
 CROP_PAD = 4.0        # the frame's crop: the circle's square grown by CROP_PAD pixels
 TEXTURE_WIDTH = 1024  # texture width at the finest level (reduced from the model's by 2x2 boxes)
-DAMPING = 1e-3        # Levenberg-Marquardt: lambda * diag(J^T J) added to the normal equations
+DAMPING = 1e-3        # Levenberg-Marquardt: the least lambda of lambda * diag(J^T J)
 MAX_STEP_DEG = 3.0    # a step that rotates more than this is scaled down to it
 REF_D_OVER_R = 12.5   # the reference camera's distance / sphere radius (250 mm / 20 mm)
 FD_STEP = 1e-3        # finite-difference step (pixels) of the tests' check of d n / d (cx, cy, r)
@@ -379,19 +379,32 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
         us, vs, obs = pixel_set(img, cx * s, cy * s, r * s, strides[LEVELS - 1 - lev])
         if len(us) < 50:
             continue
-        for _ in range(iters[LEVELS - 1 - lev]):
-            sse, sst, H, g = _eval(tex, img, us, vs, obs, R, cx * s, cy * s, r * s, ff, True)
-            H[np.diag_indices(6)] *= 1.0 + DAMPING
-            d = _solve_spd(H, g)
+        steps = iters[LEVELS - 1 - lev]
+        if not steps:
+            continue
+        # Levenberg-Marquardt: a step is kept only when it lowers this level's sum of squares;
+        # otherwise the damping grows and the step is taken again from the same point.
+        def at(R_, cx_, cy_, r_):
+            return _eval(tex, img, us, vs, obs, R_, cx_ * s, cy_ * s, r_ * s, ff, True)
+        sse, _, H, g = at(R, cx, cy, r)
+        lam = DAMPING
+        for _ in range(steps):
+            Hd = H.copy()
+            Hd[np.diag_indices(6)] *= 1.0 + lam
+            d = _solve_spd(Hd, g)
             ang = math.sqrt(float(d[:3] @ d[:3]))
             lim = math.radians(MAX_STEP_DEG)
             if ang > lim:
                 d = d * (lim / ang)
-            R = rotvec_to_matrix(d[:3]) @ R
-            cx += d[3] / s
-            cy += d[4] / s
-            r += d[5] / s
-            total += 1
+            cand = (rotvec_to_matrix(d[:3]) @ R, cx + d[3] / s, cy + d[4] / s, r + d[5] / s)
+            sse_c, _, H_c, g_c = at(*cand)
+            if sse_c <= sse:
+                R, cx, cy, r = cand
+                sse, H, g = sse_c, H_c, g_c
+                lam = max(DAMPING, lam * 0.1)
+                total += 1
+            else:
+                lam *= 10.0
     s = 1.0 / (1 << residual_level)
     ff = camera_focal_px * s if camera_focal_px else None
     us, vs, obs = pixel_set(fpyr[residual_level], cx * s, cy * s, r * s, residual_stride)

@@ -550,11 +550,16 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         long np = pixel_set(w, lev, cx * s, cy * s, r * s, rf_strides[li], &uv);
         if (np < 0) { seterr(err, errlen, "refine: out of memory"); return -1; }
         if (np < 50) continue;
+        if (!rf_iters[li]) continue;
+        /* Levenberg-Marquardt (training/refine.py): a step is kept only when it
+         * lowers this level's sum of squares, else the damping grows */
+        double H[6][6], g[6], sse, sst, lam = RF_DAMPING;
+        evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &sse, &sst, H, g);
         for (int it = 0; it < rf_iters[li]; it++) {
-            double H[6][6], g[6], d[6], sse, sst, M[3][3], Rn[3][3];
-            evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &sse, &sst, H, g);
-            for (int i = 0; i < 6; i++) H[i][i] *= 1.0 + RF_DAMPING;
-            solve_spd(6, H, g, d);
+            double Hd[6][6], d[6], M[3][3], Rc[3][3], Hc[6][6], gc[6], sse_c, sst_c;
+            memcpy(Hd, H, sizeof Hd);
+            for (int i = 0; i < 6; i++) Hd[i][i] *= 1.0 + lam;
+            solve_spd(6, Hd, g, d);
             double ang = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
             double lim = RF_MAX_STEP_DEG * M_PI / 180.0;
             if (ang > lim)
@@ -562,12 +567,22 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
             rotvec_to_matrix(d, M);
             for (int i = 0; i < 3; i++)
                 for (int j = 0; j < 3; j++)
-                    Rn[i][j] = M[i][0] * R[0][j] + M[i][1] * R[1][j] + M[i][2] * R[2][j];
-            memcpy(R, Rn, sizeof R);
-            cx += d[3] / s;
-            cy += d[4] / s;
-            r += d[5] / s;
-            total++;
+                    Rc[i][j] = M[i][0] * R[0][j] + M[i][1] * R[1][j] + M[i][2] * R[2][j];
+            double cxc = cx + d[3] / s, cyc = cy + d[4] / s, rc_ = r + d[5] / s;
+            evaluate(t, lev, w, uv, np, Rc, cxc * s, cyc * s, rc_ * s, ff, &sse_c, &sst_c, Hc, gc);
+            if (sse_c <= sse) {
+                memcpy(R, Rc, sizeof R);
+                cx = cxc;
+                cy = cyc;
+                r = rc_;
+                sse = sse_c;
+                memcpy(H, Hc, sizeof H);
+                memcpy(g, gc, sizeof g);
+                lam = lam * 0.1 > RF_DAMPING ? lam * 0.1 : RF_DAMPING;
+                total++;
+            } else {
+                lam *= 10.0;
+            }
         }
     }
     {

@@ -13,10 +13,18 @@
 /* The parameters of training/refine.py (tests/host/unit/test_refine.c reads
  * them back from the Python file). */
 #define RF_LEVELS 3
-#define RF_ITERS_INIT {3, 2, 1}       /* Gauss-Newton steps per level, coarse to fine */
+#ifndef RF_ITERS_INIT
+#define RF_ITERS_INIT {5, 2, 1}       /* Levenberg-Marquardt steps per level, coarse to fine */
+#endif
+#ifndef RF_STRIDES_INIT
 #define RF_STRIDES_INIT {2, 2, 4}     /* pixel sampling stride per level, coarse to fine */
+#endif
+#ifndef RF_RESIDUAL_LEVEL
 #define RF_RESIDUAL_LEVEL 1           /* the residual: this level's pixels ... */
+#endif
+#ifndef RF_RESIDUAL_STRIDE
 #define RF_RESIDUAL_STRIDE 2          /* ... every RF_RESIDUAL_STRIDE-th row and column */
+#endif
 #define RF_RHO_MAX 0.92
 #define RF_CROP_PAD 4.0               /* the crop: the circle's square grown by this (px) */
 #define RF_TEXTURE_WIDTH 1024
