@@ -307,3 +307,37 @@ def test_vcam_serves_scene_frames(tmp_path, texture_png):
         want, _ = sr.frame((5.0, 6.0, 7.0), np.random.default_rng([3, n]))
         np.testing.assert_array_equal(got[:, :, ::-1], want)
     assert not np.array_equal(frames[0], frames[1])  # the sensor noise differs
+
+
+@pytest.mark.parametrize("direction,kind", [(0, "post"), (90, "post"), (-90, "cup"), (0, "fork")])
+def test_mount_touches_the_sphere_from_its_direction(stripe_rgb, direction, kind):
+    """Just outside the outline, on the mount's side, is the mount; on the opposite side the background."""
+    scene = scene_from_dict(dict(CLEAN, view={}, mount={"kind": {kind: 1}, "direction_deg": direction,
+                                                        "post_radius_mm": 6, "color": [0, 255, 0]}))
+    img, params = SceneRenderer(stripe_rgb, scene).frame((0, 0, 0), np.random.default_rng(0))
+    cx, cy, r = params["circle"]
+    a = np.radians(direction)
+    side = np.array([np.sin(a), np.cos(a)])  # image (u, v) direction toward the mount (v down)
+
+    def at(dist):
+        u, v = np.array([cx, cy]) + dist * side
+        return img[int(v), int(u)].astype(int)
+
+    if kind == "fork":  # the prongs meet the sphere beside the axis; the stem starts past the bar
+        assert np.abs(at(r + 40) - MAGENTA).max() > 100  # the bar, 6 mm below the sphere
+    else:
+        for d in (r + 1.5, r + 5, r + 40):
+            px = at(d)
+            assert px[1] > px[0] + 40 and px[1] > px[2] + 40, (d, px)  # green: the mount
+    far = np.array([cx, cy]) - (r + 3) * side
+    assert np.abs(img[int(far[1]), int(far[0])].astype(int) - MAGENTA).max() < 10  # background opposite
+
+
+def test_cli_scene_input_errors(tmp_path, texture_png):
+    r = run_sim("render", "--texture", texture_png, "--scene", str(tmp_path / "none.json"), "--pose", "0", "0", "0",
+                "--out", str(tmp_path / "f.png"))
+    assert r.returncode == 2 and "none.json" in r.stderr and "cannot read scene file" in r.stderr
+    r = run_sim("render", "--texture", texture_png, "--pose", "0", "0", "0", "--out", str(tmp_path / "f.png"),
+                "--truth", str(tmp_path / "t.json"))
+    assert r.returncode == 2 and "--truth needs --scene" in r.stderr
+    assert not (tmp_path / "f.png").exists() and not (tmp_path / "t.json").exists()
