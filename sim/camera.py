@@ -129,7 +129,7 @@ def camera_from_dict(values, source="camera"):
         merged[key] = value
     cam = Camera(**merged)
     if "distortion" in merged:
-        _check_distortion(cam, source)
+        check_distortion(cam, source)
     if cam.distance_mm <= cam.radius_mm * 1.05:
         raise CameraError(f"{source}: key 'distance_mm' ({cam.distance_mm}) must exceed the sphere radius "
                           f"({cam.radius_mm}) with room to spare: the camera would sit inside the sphere")
@@ -147,7 +147,7 @@ def _number_list(value, n, key, source):
     return tuple(float(v) for v in value)
 
 
-def _check_distortion(cam, source):
+def check_distortion(cam, source):
     """Refuse coefficients under which the image is not one-to-one (the lens model folds over).
 
     Along the frame's diagonal the distorted radius r (1 + k1 r^2 + k2 r^4 + k3 r^6) must grow

@@ -14,13 +14,14 @@ truth.jsonl, so a frame depends only on its generator.
 """
 import colorsys
 import hashlib
+import itertools
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sim.camera import Camera, CameraError, camera_from_dict, read_json
+from sim.camera import Camera, CameraError, camera_from_dict, check_distortion, read_json
 
 FORMAT = "spherepose-scene-1"
 PHOTO_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
@@ -216,14 +217,11 @@ def _camera(top, base):
 
 def _check_distortion_box(camera, view, distortion, source):
     """Every corner of the coefficients' box must be a usable lens for this camera."""
-    import itertools
-    from sim.camera import _check_distortion
-    from dataclasses import replace
     keys = ("k1", "k2", "p1", "p2", "k3")
     for combo in itertools.product(*(distortion[k] for k in keys)):
         cam = replace(camera, distortion=tuple(combo), focal_mm=camera.focal_mm * view["focal_scale"][0])
         try:
-            _check_distortion(cam, f"{source}: key 'distortion' at {dict(zip(keys, combo))}")
+            check_distortion(cam, f"{source}: key 'distortion' at {dict(zip(keys, combo))}")
         except CameraError as e:
             raise SceneError(str(e)) from None
 
@@ -418,7 +416,6 @@ def draw(scene, rng):
 def margin_for(scene):
     """Pixels the pinhole render needs beyond the frame for the widest distortion the scene draws."""
     from sim.lens import margin_px
-    import itertools
     cam = scene.camera
     boxes = ([[c] for c in cam.distortion] if scene.distortion is None
              else [scene.distortion[k] for k in ("k1", "k2", "p1", "p2", "k3")])
