@@ -406,7 +406,11 @@ def draw(scene, rng):
     r_px = f_px * cam.radius_mm / math.sqrt(dist_mm ** 2 - cam.radius_mm ** 2)
     u0, v0 = cam.principal
     return {
-        "camera": {"focal_px": f_px, "principal_px": [u0, v0], "distortion": coeffs, "distance_mm": dist_mm},
+        # The frame's camera; with width, height, pixel pitch and sphere diameter a reader can rebuild
+        # a camera file for it (focal_mm = focal_px * pixel_mm).
+        "camera": {"focal_px": f_px, "principal_px": [u0, v0], "distortion": coeffs, "distance_mm": dist_mm,
+                   "width": cam.width, "height": cam.height, "pixel_mm": cam.pixel_mm,
+                   "sphere_diameter_mm": cam.sphere_diameter_mm},
         "offset_px": offset,
         "circle": [u0 + offset[0], v0 + offset[1], r_px],
         "sphere": sphere, "lights": lights, "mount": mount, "background": background, "image": image,
