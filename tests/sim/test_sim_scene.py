@@ -341,3 +341,16 @@ def test_cli_scene_input_errors(tmp_path, texture_png):
                 "--truth", str(tmp_path / "t.json"))
     assert r.returncode == 2 and "--truth needs --scene" in r.stderr
     assert not (tmp_path / "f.png").exists() and not (tmp_path / "t.json").exists()
+
+
+def test_plain_renderer_follows_the_camera_calibration(stripe_rgb):
+    """`sim render --camera` with principal_px and distortion: undistorted, the outline is the camera's circle."""
+    from sim.render import Renderer
+    cam = camera_from_dict({"focal_mm": 6.0, "principal_px": [420.5, 200.25],
+                            "distortion": [-0.25, 0.08, 0.001, -0.0005, 0.0]})
+    r = Renderer(stripe_rgb, cam, background=MAGENTA)
+    assert r.margin > 0
+    img = r.render((10, 20, 30))
+    und = cv2.undistort(img, cam.opencv_matrix(), np.array(cam.distortion))
+    cx, cy, rad = silhouette_circle(und, MAGENTA)
+    assert abs(cx - 420.5) < 0.5 and abs(cy - 200.25) < 0.5 and abs(rad - cam.radius_px) < 0.5, (cx, cy, rad)
