@@ -24,6 +24,9 @@ import numpy as np
 from sim.camera import Camera, CameraError, camera_from_dict, check_distortion, read_json
 
 FORMAT = "spherepose-scene-1"
+# The scene renderer's version, in every scene dataset's record: bump it when the same draw would
+# give other pixels (a resume then refuses a folder rendered by the older code, naming this key).
+RENDERER = 1
 PHOTO_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 MOUNT_KINDS = ("none", "post", "cup", "fork")
@@ -130,8 +133,8 @@ class Scene:
 
     def settings(self):
         """What a dataset record keeps of the scene (resume must match it): the file's content, the
-        resolved camera and the photos' hashes."""
-        return {"file": self.raw, "camera": self.camera.to_dict(),
+        resolved camera, the scene renderer's version and the photos' hashes."""
+        return {"file": self.raw, "camera": self.camera.to_dict(), "renderer": RENDERER,
                 "photos": [[os.path.basename(p), _sha256(p)] for p in self.photos]}
 
 
