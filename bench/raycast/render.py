@@ -24,6 +24,7 @@ import numpy as np
 from . import backgrounds, camera, mounts, shapes
 
 SPHERE, BACKDROP = 0, -1      # hit ids; mount parts are 1, 2, ...
+CHUNK_RAYS = 1 << 15          # rays traced at once: about 1 MB per float64 array
 
 
 def euler_matrix(x_deg, y_deg, z_deg):
@@ -60,10 +61,11 @@ def texture_lookup(tex, body):
     fv = (v - r0)[:, None]
     c0 = c0.astype(np.int64) % w
     c1 = (c0 + 1) % w
-    r1 = np.clip(r0 + 1, 0, h - 1).astype(np.int64)
-    r0 = np.clip(r0, 0, h - 1).astype(np.int64)
-    top = tex[r0, c0] * (1 - fu) + tex[r0, c1] * fu
-    bottom = tex[r1, c0] * (1 - fu) + tex[r1, c1] * fu
+    r1 = np.clip(r0 + 1, 0, h - 1).astype(np.int64) * w
+    r0 = np.clip(r0, 0, h - 1).astype(np.int64) * w
+    flat = tex.reshape(-1, 3)
+    top = np.take(flat, r0 + c0, axis=0) * (1 - fu) + np.take(flat, r0 + c1, axis=0) * fu
+    bottom = np.take(flat, r1 + c0, axis=0) * (1 - fu) + np.take(flat, r1 + c1, axis=0) * fu
     return top * (1 - fv) + bottom * fv
 
 
@@ -75,9 +77,14 @@ def trace(scene, cam, u, v, with_mount=True):
     """What the rays through frame points (u, v) meet: hit id [N] (SPHERE, mount part k >= 1 or
     BACKDROP), world points [N, 3], normals [N, 3], ray directions [N, 3]. with_mount=False: the
     sphere alone (for rays known to see nothing else)."""
+    u, v = np.ravel(u), np.ravel(v)
+    if len(u) > CHUNK_RAYS:                     # in chunks that stay in the CPU's caches
+        parts = [trace(scene, cam, u[k:k + CHUNK_RAYS], v[k:k + CHUNK_RAYS], with_mount)
+                 for k in range(0, len(u), CHUNK_RAYS)]
+        return tuple(np.concatenate(a) for a in zip(*parts))
     cam = frame_camera(scene, cam)
     o = np.array([0.0, 0.0, cam.distance_mm])
-    d = camera.pixel_rays(cam, np.ravel(u), np.ravel(v), scene.get("shift_px", (0.0, 0.0))).reshape(-1, 3)
+    d = camera.pixel_rays(cam, u, v, scene.get("shift_px", (0.0, 0.0))).reshape(-1, 3)
     t_best, n_best = shapes.sphere_hit(o, d, cam.radius_mm)
     hit = np.where(np.isfinite(t_best), SPHERE, BACKDROP)
     parts = mounts.solids(scene.get("mount"), cam.radius_mm) if with_mount else []
@@ -94,7 +101,7 @@ def trace(scene, cam, u, v, with_mount=True):
 def surface_coords(scene, cam, u, v):
     """Texture (lat, lon) in degrees seen at frame points (u, v); NaN where the sphere is not seen."""
     hit, _, n, _ = trace(scene, cam, u, v)
-    body = n @ euler_matrix(*scene["pose"])          # rows: (R^T n)^T = n^T R
+    body = shapes.rows_mat(n, euler_matrix(*scene["pose"]))   # rows: (R^T n)^T = n^T R
     lat = np.degrees(np.arcsin(np.clip(body[:, 1], -1, 1)))
     lon = np.degrees(np.arctan2(body[:, 0], body[:, 2]))
     seen = hit == SPHERE
@@ -131,7 +138,7 @@ def _shade(scene, cam, tex, hit, p, n, d):
             continue
         nk = n[sel]
         if k == SPHERE:
-            albedo = texture_lookup(tex, nk @ euler_matrix(*scene["pose"]))
+            albedo = texture_lookup(tex, shapes.rows_mat(nk, euler_matrix(*scene["pose"])))
         else:
             albedo = np.broadcast_to(np.asarray(mat["colour"], np.float32), (len(nk), 3))
         nk = nk.astype(np.float32)
@@ -142,7 +149,7 @@ def _shade(scene, cam, tex, hit, p, n, d):
             ldir = np.asarray(li["direction"], np.float64)
             ldir = (ldir / np.linalg.norm(ldir)).astype(np.float32)
             col = (np.asarray(li["colour"], np.float64) * li["intensity"]).astype(np.float32)
-            ndl = np.maximum(nk @ ldir, 0.0)
+            ndl = np.maximum(shapes.rows_dot(nk, ldir), 0.0)
             light += ndl[:, None] * col
             if mat["specular"] > 0:
                 h = view + ldir
@@ -173,19 +180,20 @@ def radiance(scene, cam, tex, supersample=4):
     # Pixels whose 3x3 neighbourhood sees the sphere alone: their sub-rays need the sphere test only.
     inside = cv2.erode((hit == SPHERE).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     for group, with_mount in ((fine & inside, False), (fine & ~inside, True)):
-        fy, fx = np.nonzero(group)
-        if not len(fy):
-            continue
+        gy, gx = np.nonzero(group)
         s = supersample
         off = (np.arange(s) + 0.5) / s
         ou, ov = np.meshgrid(off, off)
-        u = fx[:, None] + ou.ravel()[None, :]
-        v = fy[:, None] + ov.ravel()[None, :]
-        sh, sp, sn, sd = trace(scene, cam, u, v, with_mount)
-        col = _shade(scene, cam, tex, sh, sp, sn, sd).reshape(len(fy), s * s, 3)
-        back = np.repeat(bg[fy, fx][:, None, :], s * s, axis=1)
-        col = np.where(np.isnan(col), back, col)
-        img[fy, fx] = col.mean(axis=1)
+        step = max(1, CHUNK_RAYS // (s * s))
+        for k in range(0, len(gy), step):       # in chunks that stay in the CPU's caches
+            fy, fx = gy[k:k + step], gx[k:k + step]
+            u = fx[:, None] + ou.ravel()[None, :]
+            v = fy[:, None] + ov.ravel()[None, :]
+            sh, sp, sn, sd = trace(scene, cam, u, v, with_mount)
+            col = _shade(scene, cam, tex, sh, sp, sn, sd).reshape(len(fy), s * s, 3)
+            back = np.repeat(bg[fy, fx][:, None, :], s * s, axis=1)
+            col = np.where(np.isnan(col), back, col)
+            img[fy, fx] = col.mean(axis=1)
     return img
 
 

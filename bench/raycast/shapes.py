@@ -10,6 +10,16 @@ import numpy as np
 INF = np.inf
 
 
+def rows_dot(a, v):
+    """a [N, 3] . v [3] per row, without BLAS (whose threads only cost time at these shapes)."""
+    return a[:, 0] * v[0] + a[:, 1] * v[1] + a[:, 2] * v[2]
+
+
+def rows_mat(a, m):
+    """a [N, 3] @ m [3, 3], row by row, without BLAS."""
+    return a[:, 0:1] * m[0][None, :] + a[:, 1:2] * m[1][None, :] + a[:, 2:3] * m[2][None, :]
+
+
 def _first_positive(t1, t2):
     """The nearer of two roots that lies in front (t > 0), inf when neither does."""
     t = np.where(t1 > 1e-9, t1, np.where(t2 > 1e-9, t2, INF))
@@ -18,7 +28,7 @@ def _first_positive(t1, t2):
 
 def sphere_hit(o, d, radius):
     """Sphere of `radius` at the origin: |o + t d|^2 = R^2, nearer root."""
-    b = d @ o                                   # d . o
+    b = rows_dot(d, o)                          # d . o
     c = float(o @ o) - radius * radius
     disc = b * b - c
     ok = disc >= 0.0
@@ -35,8 +45,8 @@ def cylinder_hit(o, d, base, axis, radius, length):
     ob = o - np.asarray(base, np.float64)
     oa = float(ob @ axis)
     op = ob - oa * axis
-    da_all = d @ axis
-    b_all = d @ op
+    da_all = rows_dot(d, axis)
+    b_all = rows_dot(d, op)
     a_all = 1.0 - da_all * da_all               # |d - (d.a) a|^2 for unit d
     c = float(op @ op) - radius * radius
     cand = np.nonzero((b_all * b_all - a_all * c >= 0.0) & (a_all > 1e-15))[0]
@@ -63,7 +73,7 @@ def cylinder_hit(o, d, base, axis, radius, length):
         cap_sign = np.where(good, sign, cap_sign)
     t = np.minimum(t_side, t_cap)
     p = ob[None, :] + np.where(np.isfinite(t), t, 0.0)[:, None] * dc
-    radial = p - (p @ axis)[:, None] * axis
+    radial = p - rows_dot(p, axis)[:, None] * axis
     n_side = radial / np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-12)
     t_out[cand] = t
     n_out[cand] = np.where((t_cap < t_side)[:, None], cap_sign[:, None] * axis[None, :], n_side)
@@ -75,7 +85,7 @@ def box_hit(o, d, center, rotation, half):
     about `center`: the slab method in the box's frame."""
     rot = np.asarray(rotation, np.float64)
     ol = rot.T @ (o - np.asarray(center, np.float64))
-    dl = d @ rot                                # directions in the box frame
+    dl = rows_mat(d, rot)                       # directions in the box frame
     half = np.asarray(half, np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / np.where(np.abs(dl) > 1e-15, dl, 1e-15)
@@ -91,4 +101,4 @@ def box_hit(o, d, center, rotation, half):
     sign = -np.sign(dl[np.arange(len(d)), face])
     nl = np.zeros_like(dl)
     nl[np.arange(len(d)), face] = sign
-    return t, nl @ rot.T
+    return t, rows_mat(nl, rot.T)
