@@ -83,11 +83,18 @@ def test_frames_do_not_depend_on_earlier_frames(renderer, stripe_rgb):
     assert np.array_equal(a, fresh.render((10, 20, 30)))
 
 
+def _silhouette(img):
+    """(cx, cy, r) of the pixels away from the default background: centroid and area radius."""
+    ys, xs = np.nonzero(np.abs(img.astype(int) - np.array(DEFAULT_BACKGROUND)).max(axis=2) > 20)
+    return xs.mean(), ys.mean(), np.sqrt(len(xs) / np.pi)
+
+
 def test_offset_and_scale_move_the_principal_point_and_focal_length(renderer):
-    cx0, cy0, r0, _ = find_sphere(bgr(renderer.render((0, 0, 0))))
-    cx, cy, r, _ = find_sphere(bgr(renderer.render((0, 0, 0), offset_px=(12, -7), scale=1.1)))
-    assert abs(cx - cx0 - 12) <= 1 and abs(cy - cy0 + 7) <= 1
-    assert abs(r / r0 - 1.1) < 0.01
+    # Measured on the silhouette itself: this is the renderer's geometry, not a localiser's.
+    cx0, cy0, r0 = _silhouette(renderer.render((0, 0, 0)))
+    cx, cy, r = _silhouette(renderer.render((0, 0, 0), offset_px=(12, -7), scale=1.1))
+    assert abs(cx - cx0 - 12) <= 0.2 and abs(cy - cy0 + 7) <= 0.2
+    assert abs(r / r0 - 1.1) < 0.005
 
 
 def test_rotation_changes_the_view_but_not_the_silhouette(renderer):
