@@ -27,10 +27,8 @@ META_CONFIDENCE = "spherepose.confidence"
 
 # The algorithm's parameters: one source, copied into host/src/refine.h (a unit test compares).
 LEVELS = 3            # frame and texture pyramid levels, coarse to fine (2x2 box reductions)
-ITERS = (5, 2, 1)     # Levenberg-Marquardt steps per level, coarse to fine
-STRIDES = (2, 2, 4)   # sample every STRIDE-th row and column of each level, coarse to fine
-RESIDUAL_LEVEL = 1    # the level whose pixels give the residual (0 finest) ...
-RESIDUAL_STRIDE = 2   # ... every RESIDUAL_STRIDE-th row and column of it
+ITERS = (4, 2, 1)     # Levenberg-Marquardt steps per level, coarse to fine
+STRIDES = (2, 3, 5)   # sample every STRIDE-th row and column of each level, coarse to fine
 RHO_MAX = 0.92        # pixels used: centre within RHO_MAX * r of the circle's centre
 CROP_PAD = 4.0        # the frame's crop: the circle's square grown by CROP_PAD pixels
 TEXTURE_WIDTH = 1024  # texture width at the finest level (reduced from the model's by 2x2 boxes)
@@ -362,8 +360,7 @@ def residual_at(frame, circle, R, texture_pyr, camera_focal_px=None):
     return refine(frame, circle, R, texture_pyr, camera_focal_px, iters=(0,) * LEVELS).residual
 
 
-def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, strides=STRIDES,
-           residual_level=RESIDUAL_LEVEL, residual_stride=RESIDUAL_STRIDE):
+def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, strides=STRIDES):
     """Refine the pose R0 (body to world) and the circle (cx, cy, r) (continuous coordinates
     of the undistorted frame, BGR uint8) against the texture pyramid. Returns a Result."""
     cx, cy, r = (float(v) for v in circle)
@@ -372,6 +369,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
     # work in the crop's coordinates at the finest level
     cx, cy = cx - x0, cy - y0
     total = 0
+    final = None
     for lev in range(LEVELS - 1, -1, -1):
         s = 1.0 / (1 << lev)
         img, tex = fpyr[lev], texture_pyr[lev]
@@ -386,7 +384,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
         # otherwise the damping grows and the step is taken again from the same point.
         def at(R_, cx_, cy_, r_):
             return _eval(tex, img, us, vs, obs, R_, cx_ * s, cy_ * s, r_ * s, ff, True)
-        sse, _, H, g = at(R, cx, cy, r)
+        sse, sst, H, g = at(R, cx, cy, r)
         lam = DAMPING
         for _ in range(steps):
             Hd = H.copy()
@@ -397,19 +395,23 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
             if ang > lim:
                 d = d * (lim / ang)
             cand = (rotvec_to_matrix(d[:3]) @ R, cx + d[3] / s, cy + d[4] / s, r + d[5] / s)
-            sse_c, _, H_c, g_c = at(*cand)
+            sse_c, sst_c, H_c, g_c = at(*cand)
             if sse_c <= sse:
                 R, cx, cy, r = cand
-                sse, H, g = sse_c, H_c, g_c
+                sse, sst, H, g = sse_c, sst_c, H_c, g_c
                 lam = max(DAMPING, lam * 0.1)
                 total += 1
             else:
                 lam *= 10.0
-    s = 1.0 / (1 << residual_level)
-    ff = camera_focal_px * s if camera_focal_px else None
-    us, vs, obs = pixel_set(fpyr[residual_level], cx * s, cy * s, r * s, residual_stride)
-    sse, sst, _, _ = _eval(texture_pyr[residual_level], fpyr[residual_level], us, vs, obs, R,
-                           cx * s, cy * s, r * s, ff, False)
+        if lev == 0:
+            final = (sse, sst)
+    # the residual: the finest level's pixels (chosen where that level began), at the final pose
+    if final is None:
+        us, vs, obs = pixel_set(fpyr[0], cx, cy, r, strides[-1])
+        if len(us) < 50:
+            raise ValueError("refine: circle too small or outside the frame")
+        final = _eval(texture_pyr[0], fpyr[0], us, vs, obs, R, cx, cy, r, camera_focal_px, False)[:2]
+    sse, sst = final
     res = sse / sst if sst > 0 else 1.0
     return Result(R, (cx + x0, cy + y0, r), res, total)
 

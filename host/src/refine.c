@@ -531,8 +531,8 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
               const double R0[3][3], double focal_px, int steps, rf_out *out, char *err, size_t errlen)
 {
     double R[3][3];
-    int x0, y0, total = 0;
-    double *uv;
+    int x0, y0, total = 0, have_final = 0;
+    double *uv, final_sse = 0, final_sst = 0;
     memcpy(R, R0, sizeof R);
     if (!t || !w || !frame || !frame->data || !(r > 2) || !isfinite(cx) || !isfinite(cy) || !isfinite(r)) {
         seterr(err, errlen, "refine: no texture, frame or circle");
@@ -576,6 +576,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
                 cy = cyc;
                 r = rc_;
                 sse = sse_c;
+                sst = sst_c;
                 memcpy(H, Hc, sizeof H);
                 memcpy(g, gc, sizeof g);
                 lam = lam * 0.1 > RF_DAMPING ? lam * 0.1 : RF_DAMPING;
@@ -584,17 +585,21 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
                 lam *= 10.0;
             }
         }
+        if (lev == 0) {
+            have_final = 1;
+            final_sse = sse;
+            final_sst = sst;
+        }
     }
-    {
-        int lev = RF_RESIDUAL_LEVEL;
-        double s = 1.0 / (1 << lev), sse, sst;
-        double ff = focal_px > 0 ? focal_px * s : 0;
-        long np = pixel_set(w, lev, cx * s, cy * s, r * s, RF_RESIDUAL_STRIDE, &uv);
+    /* the residual: the finest level's pixels (chosen where that level began),
+     * at the final pose (training/refine.py) */
+    if (!have_final) {
+        long np = pixel_set(w, 0, cx, cy, r, rf_strides[RF_LEVELS - 1], &uv);
         if (np < 0) { seterr(err, errlen, "refine: out of memory"); return -1; }
         if (np < 50) { seterr(err, errlen, "refine: circle too small or outside the frame"); return -1; }
-        evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &sse, &sst, NULL, NULL);
-        out->residual = sst > 0 ? sse / sst : 1.0;
+        evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &final_sse, &final_sst, NULL, NULL);
     }
+    out->residual = final_sst > 0 ? final_sse / final_sst : 1.0;
     memcpy(out->R, R, sizeof R);
     rf_matrix_to_euler(R, out->euler);
     out->cx = cx + x0;

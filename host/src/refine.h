@@ -14,16 +14,10 @@
  * them back from the Python file). */
 #define RF_LEVELS 3
 #ifndef RF_ITERS_INIT
-#define RF_ITERS_INIT {5, 2, 1}       /* Levenberg-Marquardt steps per level, coarse to fine */
+#define RF_ITERS_INIT {4, 2, 1}       /* Levenberg-Marquardt steps per level, coarse to fine */
 #endif
 #ifndef RF_STRIDES_INIT
-#define RF_STRIDES_INIT {2, 2, 4}     /* pixel sampling stride per level, coarse to fine */
-#endif
-#ifndef RF_RESIDUAL_LEVEL
-#define RF_RESIDUAL_LEVEL 1           /* the residual: this level's pixels ... */
-#endif
-#ifndef RF_RESIDUAL_STRIDE
-#define RF_RESIDUAL_STRIDE 2          /* ... every RF_RESIDUAL_STRIDE-th row and column */
+#define RF_STRIDES_INIT {2, 3, 5}     /* pixel sampling stride per level, coarse to fine */
 #endif
 #define RF_RHO_MAX 0.92
 #define RF_CROP_PAD 4.0               /* the crop: the circle's square grown by this (px) */
