@@ -2,10 +2,12 @@
 
 A split folder holds `<x>_<y>_<z>.png` frames (sim.names is the only parser);
 other PNG names are an error that names the file, other file types are
-ignored. Steps 1-7 of sphere-crop-v1 (training/preprocess.py) run once per
-frame; the uint8 crops are cached in the folder as
-`.spherepose-cache-<P>-<F>.npz`: P hashes the preprocessing parameters, F every
-frame's name, size and mtime, so a change to either rebuilds it; caches of
+ignored. The preprocessing up to the crop (training/preprocess.py, the
+algorithm the parameters name) runs once per frame, with the frame's own
+camera calibration when the split has a truth.jsonl of rig scenes; the uint8
+crops are cached in the folder as `.spherepose-cache-<P>-<F>.npz`: P hashes
+the preprocessing parameters, F every frame's name, size and mtime (and the
+truth record's), so a change to either rebuilds it; caches of
 other parameter sets are kept, and concurrent runs never clash.
 Step 8 (normalise) runs on batches in torch, with the same float32 arithmetic,
 after optional augmentation of the uint8 crops.
@@ -84,63 +86,114 @@ def _cache_key(paths, params):
     for p in paths:
         st = p.stat()
         h.update(f"{p.name}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+    truth = paths[0].parent / "truth.jsonl" if paths else None
+    if truth is not None and truth.exists():
+        h.update(f"truth.jsonl\0{truth.stat().st_mtime_ns}\n".encode())
     return f"{hp}-{h.hexdigest()[:12]}"
 
 
-def _crop_file(path, params):
+def frame_cameras(root):
+    """{file name: camera dict} from a split's truth.jsonl (sim dataset --scene writes the camera
+    each frame was drawn with), so a frame is undistorted and its radius expected as a calibrated
+    user's would be. {} when the split has no such record (plain renders: the reference camera)."""
+    path = Path(root) / "truth.jsonl"
+    if not path.exists():
+        return {}
+    from sim.camera import REFERENCE
+    out = {}
+    with open(path) as f:
+        for n, line in enumerate(f, 1):
+            try:
+                rec = json.loads(line)
+                cam = (rec.get("scene") or {}).get("camera")
+                if cam is None:
+                    continue
+                out[rec["file"]] = {
+                    "focal_mm": float(cam["focal_px"]) * REFERENCE["pixel_mm"],
+                    "pixel_mm": REFERENCE["pixel_mm"],
+                    "distance_mm": float(cam.get("distance_mm", REFERENCE["distance_mm"])),
+                    "sphere_diameter_mm": float(cam.get("sphere_diameter_mm", REFERENCE["sphere_diameter_mm"])),
+                    "principal_px": cam.get("principal_px"), "distortion": cam.get("distortion")}
+            except (ValueError, KeyError, TypeError) as e:
+                raise DatasetError(f"{path}:{n}: not a truth record ({e})") from None
+    return out
+
+
+def _crop_file(path, params, camera=None):
+    """The frame's uint8 BGR crop, or a str saying why the localisation refused it."""
     frame = pp.cv2.imread(str(path), pp.cv2.IMREAD_UNCHANGED)
     if frame is None:
         raise DatasetError(f"{path}: cannot decode image (missing, corrupt or not an image)")
     if frame.dtype != np.uint8:
         raise DatasetError(f"{path}: expected 8-bit pixels, got {frame.dtype}")
+    if camera is not None:
+        camera = dict(camera, width=frame.shape[1], height=frame.shape[0])
     try:
-        cx, cy, r, bg = pp.find_sphere(frame, params)
+        return pp.crop_frame(frame, params, camera)[0]
     except pp.NoSphere as e:
-        raise DatasetError(f"{path}: {e}") from None
-    return pp.crop(frame, cx, cy, r, bg, params)
+        return f"{path.name}: {e}"
+
+
+def _crop_job(job, params):
+    return _crop_file(job[0], params, job[1])
 
 
 def load_crops(root, params, cache=True, progress=True, workers=1):
     """(crops uint8 [N, S, S, 3] RGB, labels [N, 3] float64, names) for a split folder.
-    workers: preprocessing processes (0 = every core)."""
+    Frames the localisation refuses (no sphere, or not one whole sphere, found) are left out
+    with a warning that names them: a training set is drawn wide, and a frame the runtime
+    would refuse teaches nothing. workers: preprocessing processes (0 = every core)."""
     paths, labels = list_frames(root)
     root = Path(root)
     key = _cache_key(paths, params)
     cpath = root / f"{CACHE_PREFIX}{key}.npz"
+    names = [p.name for p in paths]
     if cache and cpath.exists():
         try:
             with np.load(cpath) as z:
-                crops = z["crops"]
-            if len(crops) == len(paths):
-                return crops, labels, [p.name for p in paths]
+                crops, kept = z["crops"], z["kept"]
+            if len(kept) == len(paths) and len(crops) == int(kept.sum()):
+                return crops, labels[kept], [n for n, k in zip(names, kept) if k]
         except Exception:
-            pass  # unreadable cache: rebuild it
+            pass  # unreadable or older cache: rebuild it
+    cams = frame_cameras(root)
+    jobs = [(p, cams.get(p.name)) for p in paths]
     workers = max(1, min(workers or (os.cpu_count() or 1), len(paths) // 64 or 1))
     if workers > 1:
         import multiprocessing
         import functools
         ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
         pool = ctx.Pool(workers)
-        it = pool.imap(functools.partial(_crop_file, params=params), paths, chunksize=16)
+        it = pool.imap(functools.partial(_crop_job, params=params), jobs, chunksize=16)
     else:
         pool = None
-        it = (_crop_file(p, params) for p in paths)
+        it = (_crop_job(j, params) for j in jobs)
     if progress:
         from tqdm import tqdm
         it = tqdm(it, total=len(paths), desc=f"preprocess {root.name}", unit="frame", leave=False)
     try:
-        crops = np.stack([c[:, :, ::-1] for c in it])  # BGR -> RGB
+        results = list(it)
     finally:
         if pool is not None:
             pool.terminate()
+    refused = [r for r in results if isinstance(r, str)]
+    kept = np.array([not isinstance(r, str) for r in results], dtype=bool)
+    if not kept.any():
+        raise DatasetError(f"{root}: the sphere was found in none of its {len(paths)} frames "
+                           f"(first: {refused[0]})")
+    if refused:
+        shown = "; ".join(refused[:5]) + (f"; and {len(refused) - 5} more" if len(refused) > 5 else "")
+        print(f"posetrain: warning: {root}: {len(refused)} of {len(paths)} frames left out, "
+              f"the localisation refused them: {shown}", file=sys.stderr, flush=True)
+    crops = np.stack([r[:, :, ::-1] for r in results if not isinstance(r, str)])  # BGR -> RGB
     if cache:
         for old in root.glob(f"{CACHE_PREFIX}{key.split('-')[0]}-*.npz"):
             if old != cpath:  # stale: same parameters, other frames
                 old.unlink(missing_ok=True)
         tmp = root / f".spherepose-tmp-{os.getpid()}.npz"
-        np.savez(tmp, crops=crops)
+        np.savez(tmp, crops=crops, kept=kept)
         os.replace(tmp, cpath)  # atomic: a killed or concurrent run never leaves half a cache
-    return crops, labels, [p.name for p in paths]
+    return crops, labels[kept], [n for n, k in zip(names, kept) if k]
 
 
 class PoseSet:

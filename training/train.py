@@ -76,8 +76,9 @@ def add_train_arguments(t):
     t.add_argument("--seed", type=int, default=0, help="random seed")
     t.add_argument("--resume", default=None, help="checkpoint to resume from (its args are reused)")
     t.add_argument("--init", default=None,
-                   help="start from this checkpoint's weights (fine-tuning: new optimiser and schedule; "
-                        "architecture, head and preprocessing must match)")
+                   help="start from this checkpoint's (.pth) or exported model's (.onnx) weights (fine-tuning: "
+                        "new optimiser and schedule; architecture and head must match, and a checkpoint's "
+                        "preprocessing too)")
     t.add_argument("--export-tol", type=float, default=1e-4,
                    help="max |onnxruntime - PyTorch| in degrees at export")
     t.add_argument("--no-export", dest="export", action="store_false", help="skip ONNX export at the end")
@@ -247,7 +248,14 @@ def _train(args):
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lr_at)
     g = torch.Generator().manual_seed(args.seed)
     best_mae = float("inf")
-    if args.init and ck is None:
+    if args.init and ck is None and str(args.init).endswith(".onnx"):
+        # an exported model: its folded BatchNorms are unfolded on this run's own crops
+        from .data import normalise
+        from .onnx_init import load_onnx_weights
+        calib = normalise(train_set.images[:256], params).to(device)
+        load_onnx_weights(model, args.init, calib)
+        print(f"posetrain: weights from {args.init}", flush=True)
+    elif args.init and ck is None:
         init = torch.load(args.init, map_location="cpu", weights_only=False)
         for k in ("arch", "head", "preprocess"):
             if init["config"].get(k) != config.get(k):
