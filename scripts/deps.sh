@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 
 DEBIAN_PACKAGES=(
   build-essential pkg-config clang libclang-rt-14-dev valgrind
-  gcc-avr avr-libc binutils-avr avrdude simavr libsimavr-dev libelf-dev
+  gcc-avr avr-libc binutils-avr avrdude simavr libsimavr-dev libelf-dev arduino-core-avr
   libopencv-dev libserialport-dev libcmocka-dev gstreamer1.0-plugins-base
   libosmesa6 libegl1 libgl1
 )
