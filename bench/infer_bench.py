@@ -235,6 +235,7 @@ def main(args):
     row("poseinfer: decode", c_cpu["full_decode"], c_wall["full_decode"])
     row("poseinfer: preprocess", c_cpu["full_preprocess"], c_wall["full_preprocess"])
     row("poseinfer: infer", c_cpu["full_infer"], c_wall["full_infer"])
+    row("poseinfer: refine (docs/refine.md)", c_cpu["full_refine"], c_wall["full_refine"])
     row("**poseinfer: total**", c_cpu["full"], c_wall["full"])
     row("Python: decode (cv2.imread)", py_cpu["decode"], py_wall["decode"])
     row("Python: preprocess (training/preprocess.py)", py_cpu["preprocess"], py_wall["preprocess"])
