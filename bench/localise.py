@@ -15,6 +15,7 @@ frames raised an error. --camera passes the camera (expected radius) to v2.
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -58,12 +59,21 @@ def composite_frames(n, seed, texture, out=None):
 
 
 def truth_frames(path):
+    """Frames of a truth.jsonl; the camera of each from its "scene" record when there is one
+    (sim dataset --scene: focal length, principal point, distortion, distance)."""
     root = Path(path).parent
     for line in Path(path).read_text().splitlines():
         t = json.loads(line)
         img = cv2.imread(str(root / t["file"]), cv2.IMREAD_COLOR)
         cx, cy, r = t["circle"]
-        yield img, (cx - 0.5, cy - 0.5, r), None
+        cam = None
+        sc = (t.get("scene") or {}).get("camera")
+        if sc:
+            pixel = 0.0096
+            cam = {"width": img.shape[1], "height": img.shape[0], "focal_mm": sc["focal_px"] * pixel,
+                   "pixel_mm": pixel, "distance_mm": sc["distance_mm"], "sphere_diameter_mm": 40.0,
+                   "principal_px": sc["principal_px"], "distortion": sc["distortion"]}
+        yield img, (cx - 0.5, cy - 0.5, r), cam
 
 
 def summarise(name, errs, fails, n, ms):
@@ -83,7 +93,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1, help="random seed (default 1)")
     ap.add_argument("--texture", default=str(ROOT / "build/textures/Texture_3_color.png"),
                     help="sphere texture (default build/textures/Texture_3_color.png)")
-    ap.add_argument("--camera", action="store_true", help="give v2 the camera (expected radius +-15 %%)")
+    ap.add_argument("--camera", action="store_true",
+                    help="give v2 the camera (expected radius +-15 %%); a lens distortion is always undone")
     ap.add_argument("--truth", help="truth.jsonl of existing frames instead of composites")
     ap.add_argument("--camera-file", help="camera file for --truth frames (undistortion, radius)")
     ap.add_argument("--out", help="also write the composite frames here")
@@ -98,21 +109,26 @@ def main(argv=None):
     else:
         frames = composite_frames(args.frames, args.seed, args.texture, args.out)
     cam_file = json.loads(Path(args.camera_file).read_text()) if args.camera_file else None
-    algos = [("sphere-crop-v2", pp.params())] + ([("sphere-crop-v1", pp.params({"name": pp.NAME_V1}))]
-                                                if args.v1 else [])
+    v2 = pp.params(os.environ.get("SPHEREPOSE_PP_OVERRIDE") or None)  # for trying parameter changes
+    algos = [("sphere-crop-v2", v2)] + ([("sphere-crop-v1", pp.params({"name": pp.NAME_V1}))] if args.v1 else [])
     res = {a: ([], 0, 0.0) for a, _ in algos}
     n = 0
     for img, (cx, cy, r), cam in frames:
         n += 1
+        if cam_file is not None:
+            cam = cam_file
+        if cam is not None:
+            cam = {k: v for k, v in cam.items() if k != "_scale"}
         for a, p in algos:
             errs, fails, t = res[a]
-            camera = cam_file if cam_file is not None else (cam if args.camera else None)
-            if camera is not None and "_scale" in camera:
-                camera = {k: v for k, v in camera.items() if k != "_scale"}
             t0 = time.perf_counter()
             try:
-                frame = pp.undistort(img, camera) if camera is not None and a == "sphere-crop-v2" else img
-                fx, fy, fr, _ = pp.find_sphere(frame, p, camera) if a == "sphere-crop-v2" else pp.find_sphere(img, p)
+                if a == "sphere-crop-v2":
+                    # a lens's distortion is always undone; its expected radius used with --camera
+                    frame = pp.undistort(img, cam) if cam is not None else img
+                    fx, fy, fr, _ = pp.find_sphere(frame, p, cam if args.camera or cam_file is not None else None)
+                else:
+                    fx, fy, fr, _ = pp.find_sphere(img, p)
                 errs.append((math.hypot(fx - cx, fy - cy), abs(fr / r - 1) * 100))
                 if args.verbose:
                     print(f"frame {n - 1}: {a}: centre {errs[-1][0]:.3f} px, radius {errs[-1][1]:.3f} %", file=sys.stderr)

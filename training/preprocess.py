@@ -64,18 +64,19 @@ DEFAULTS_V2 = {
     "cand_frac": 0.35,
     # fine stage, per candidate: `rays` rays from the centre; edge candidates
     # on each (local maxima of at least ray_edge_min of the colour step over
-    # 1 px); first pass: within +-(consensus_cells * s + consensus_px) of the
-    # radius, the centre shift and radius most rays agree on (grid of
-    # consensus_step_px); every pass: irls_iters rounds of "nearest candidate
-    # per ray, Tukey weights (tukey_c times the robust scale, at least
-    # sigma_min_px), algebraic circle fit"; passes after the first cast the
-    # rays again from the new centre, within +-(fine_window_px +
-    # fine_window_frac * r)
+    # 1 px); first pass: the centre shift within +-w, w = consensus_cells * s
+    # + consensus_px (grid of consensus_step_px), and radius that most rays
+    # agree on, from candidates within +-consensus_reach * w of the radius;
+    # every pass: irls_iters rounds of "nearest candidate per ray, Tukey
+    # weights (tukey_c times the robust scale, at least sigma_min_px),
+    # algebraic circle fit"; passes after the first cast the rays again from
+    # the new centre, within +-(fine_window_px + fine_window_frac * r)
     "rays": 128,
     "ray_edge_min": 12,
     "consensus_cells": 4,
     "consensus_px": 4,
     "consensus_step_px": 2,
+    "consensus_reach": 1.5,
     "fine_passes": 3,
     "fine_window_px": 3,
     "fine_window_frac": 0.02,
@@ -158,6 +159,7 @@ def undistort(frame, camera):
     _, f, cx, cy, dist = camera_geometry(camera)
     if dist is None:
         return frame
+    _check_size(frame, camera)
     h, w = frame.shape[:2]
     mx, my = _undistort_map(w, h, f, cx, cy, tuple(dist))
     return _remap_bilinear(frame, mx, my)
@@ -331,6 +333,8 @@ def _coarse(frame, p, rmin, rmax):
         return [], s
     lo = max(1, math.floor(rmin / s))
     hi = math.floor(rmax / s) + 1
+    if hi < lo:
+        return [], s
     bins = _radius_bins(lo, hi, p["coarse_rbin"])
     nb = bins[-1] + 1
     rho = np.arange(lo, hi + 1, dtype=np.float64)
@@ -351,26 +355,29 @@ def _coarse(frame, p, rmin, rmax):
     P[:nb, 1:-1, 1:-1] = acc
     box = sum(P[:, i:i + hs, j:j + ws] for i in range(3) for j in range(3))
     work = box[:nb] + box[1:nb + 1]
+    # per centre its best radius bin (first on ties); peaks in row-major order (first on ties)
+    vmax = work.max(axis=0)
+    bmax = work.argmax(axis=0)
     cands = []
     sup = 0.5 * lo
     yy, xx = np.indices((hs, ws))
     best = None
     start = [bins.index(b) + lo for b in range(nb)] + [hi + 1]
     for _ in range(p["candidates"]):
-        k = int(np.argmax(work))
-        v = int(work.flat[k])
+        k = int(np.argmax(vmax))
+        v = int(vmax.flat[k])
         if v <= 0 or (best is not None and v < p["cand_frac"] * best):
             break
         best = v if best is None else best
-        b, rest = divmod(k, hs * ws)
-        Yc, Xc = divmod(rest, ws)
+        Yc, Xc = divmod(k, ws)
+        b = int(bmax[Yc, Xc])
         r_s = _radius_vote(x, y, gx, gy, Xc, Yc, start[b], start[min(b + 2, nb)] - 1)
         if r_s is not None:
             off = (s - 1) / 2.0
             cands.append((Xc * s + off, Yc * s + off, r_s * s, v))
         # suppress this peak's neighbourhood (centres closer than half the smallest radius)
         d2 = (xx - Xc) ** 2 + (yy - Yc) ** 2
-        work[:, d2 <= sup * sup] = 0
+        vmax[d2 <= sup * sup] = 0
     return cands, s
 
 
@@ -606,8 +613,14 @@ def _fine(img, dirs, cand, s, p):
     rays inside the frame with an edge within inlier_px of the circle."""
     cx, cy, r = cand[:3]
     for ps in range(p["fine_passes"]):
-        win = p["consensus_cells"] * s + p["consensus_px"] if ps == 0 else p["fine_window_px"] + p["fine_window_frac"] * r
-        cands = _ray_edges(img, dirs, cx, cy, r, win, p)
+        if ps == 0:
+            # the shift grid covers the coarse centre's error; the rays reach farther, for the
+            # radius's error on top of it
+            win = p["consensus_cells"] * s + p["consensus_px"]
+            cands = _ray_edges(img, dirs, cx, cy, r, p["consensus_reach"] * win, p)
+        else:
+            win = p["fine_window_px"] + p["fine_window_frac"] * r
+            cands = _ray_edges(img, dirs, cx, cy, r, win, p)
         sx, sy, sr = cx, cy, r
         if ps == 0:
             c = _consensus(cands, dirs, r, win, p["consensus_step_px"])
@@ -641,8 +654,17 @@ def rim_outside(cx, cy, r, h, w, k=256):
     return int(out.sum()) / k
 
 
+def _check_size(frame, camera):
+    cw, ch = int(_cam_get(camera, "width", 640)), int(_cam_get(camera, "height", 512))
+    h, w = frame.shape[:2]
+    if (w, h) != (cw, ch):
+        raise ValueError(f"frame is {w}x{h}, the camera file's calibration is for {cw}x{ch}")
+
+
 def _find_sphere_v2(frame, p, camera=None):
     h, w = frame.shape[:2]
+    if camera is not None:
+        _check_size(frame, camera)
     rmin, rmax = radius_range(h, w, p, camera)
     cands, s = _coarse(frame, p, rmin, rmax)
     dirs = _ray_dirs(p["rays"])
