@@ -35,6 +35,7 @@ TEXTURE_WIDTH = 1024  # texture width at the finest level (reduced from the mode
 DAMPING = 1e-3        # Levenberg-Marquardt: the least lambda of lambda * diag(J^T J)
 MAX_STEP_DEG = 3.0    # a step that rotates more than this is scaled down to it
 REF_D_OVER_R = 12.5   # the reference camera's distance / sphere radius (250 mm / 20 mm)
+LUMA = (0.114, 0.587, 0.299)  # B, G, R weights of a gray frame's texture (ITU-R BT.601, as OpenCV)
 FD_STEP = 1e-3        # finite-difference step (pixels) of the tests' check of d n / d (cx, cy, r)
 
 DEFAULT_CONFIDENCE = {"residual_max": 0.25, "range_margin_deg": 2.0}
@@ -248,10 +249,16 @@ def frame_pyramid(frame, cx, cy, r):
     y0 = max(0, int(math.floor((cy - half) / step)) * step)
     x1 = min(w, int(math.ceil((cx + half) / step)) * step)
     y1 = min(h, int(math.ceil((cy + half) / step)) * step)
-    pyr = [np.asarray(frame[y0:y1, x0:x1], np.float64)]
+    crop = np.asarray(frame[y0:y1, x0:x1])
+    if crop.ndim == 2:
+        crop = np.repeat(crop[:, :, None], 3, axis=2)
+    crop = crop[:, :, :3]
+    # a gray frame (one channel, or three equal ones): the texture is seen as its luma
+    gray = bool((crop[:, :, 0] == crop[:, :, 1]).all() and (crop[:, :, 1] == crop[:, :, 2]).all())
+    pyr = [crop.astype(np.float64)]
     for _ in range(LEVELS - 1):
         pyr.append(reduce2(pyr[-1]))
-    return pyr, (x0, y0)
+    return pyr, (x0, y0), gray
 
 
 def pixel_set(img, cx, cy, r, stride=1):
@@ -322,13 +329,18 @@ class Result:
                 f"residual={self.residual:.4f})")
 
 
-def _eval(tex, img, us, vs, obs, R, cx, cy, r, fixed_f, want_jac):
+def _eval(tex, img, us, vs, obs, R, cx, cy, r, fixed_f, want_jac, gray=False):
     if want_jac:
         n, dn = normals_and_derivs(us, vs, cx, cy, r, fixed_f)
     else:
         n, dn = normals(us, vs, cx, cy, r, focal_px(r, fixed_f)), None
     b = n @ R                       # R^T n, row by row
     val, grad = sample(tex, b)
+    if gray:
+        w = np.asarray(LUMA)
+        val = np.repeat((val[:, 0] * w[0] + val[:, 1] * w[1] + val[:, 2] * w[2])[:, None], 3, axis=1)
+        g = grad[:, 0, :] * w[0] + grad[:, 1, :] * w[1] + grad[:, 2, :] * w[2]
+        grad = np.repeat(g[:, None, :], 3, axis=1)
     model, shade, sse, sst = photometric_fit(obs, val, n)
     if not want_jac:
         return sse, sst, None, None
@@ -365,7 +377,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
     of the undistorted frame, BGR uint8) against the texture pyramid. Returns a Result."""
     cx, cy, r = (float(v) for v in circle)
     R = np.array(R0, np.float64)
-    fpyr, (x0, y0) = frame_pyramid(frame, cx, cy, r)
+    fpyr, (x0, y0), gray = frame_pyramid(frame, cx, cy, r)
     # work in the crop's coordinates at the finest level
     cx, cy = cx - x0, cy - y0
     total = 0
@@ -383,7 +395,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
         # Levenberg-Marquardt: a step is kept only when it lowers this level's sum of squares;
         # otherwise the damping grows and the step is taken again from the same point.
         def at(R_, cx_, cy_, r_):
-            return _eval(tex, img, us, vs, obs, R_, cx_ * s, cy_ * s, r_ * s, ff, True)
+            return _eval(tex, img, us, vs, obs, R_, cx_ * s, cy_ * s, r_ * s, ff, True, gray)
         sse, sst, H, g = at(R, cx, cy, r)
         lam = DAMPING
         for _ in range(steps):
@@ -410,7 +422,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
         us, vs, obs = pixel_set(fpyr[0], cx, cy, r, strides[-1])
         if len(us) < 50:
             raise ValueError("refine: circle too small or outside the frame")
-        final = _eval(texture_pyr[0], fpyr[0], us, vs, obs, R, cx, cy, r, camera_focal_px, False)[:2]
+        final = _eval(texture_pyr[0], fpyr[0], us, vs, obs, R, cx, cy, r, camera_focal_px, False, gray)[:2]
     sse, sst = final
     res = sse / sst if sst > 0 else 1.0
     return Result(R, (cx + x0, cy + y0, r), res, total)

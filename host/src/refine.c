@@ -36,6 +36,7 @@ typedef struct rf_pix {
 struct rf_work {
     int w[RF_LEVELS], h[RF_LEVELS]; /* the crop's size at each level */
     const rf_image *frame;          /* the frame, the crop's corner at (x0, y0) */
+    int gray;                       /* a gray frame: the texture is seen as its luma */
     int x0, y0;
     rf_pix *pix;
     size_t pcap;
@@ -247,6 +248,14 @@ static int frame_crop(rf_work *w, const rf_image *f, double cx, double cy, doubl
     w->frame = f;
     w->x0 = xa;
     w->y0 = ya;
+    /* one channel, or three equal ones over the crop */
+    w->gray = 1;
+    if (f->channels != 1)
+        for (int j = ya; j < yb && w->gray; j++) {
+            const uint8_t *p = f->data + (size_t)j * f->stride + (size_t)xa * f->channels;
+            for (int i = xa; i < xb; i++, p += f->channels)
+                if (p[0] != p[1] || p[1] != p[2]) { w->gray = 0; break; }
+        }
     w->w[0] = xb - xa;
     w->h[0] = yb - ya;
     for (int l = 1; l < RF_LEVELS; l++) {
@@ -444,6 +453,14 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
         normal_at(u, v, cx, cy, r, f, p->n, &tt);
         for (int i = 0; i < 3; i++) b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
         tex_sample(tex, tw, th, b, p->val, grad);
+        if (w->gray) {
+            double y = p->val[0] * RF_LUMA_B + p->val[1] * RF_LUMA_G + p->val[2] * RF_LUMA_R;
+            for (int i = 0; i < 3; i++) {
+                double gi = grad[0][i] * RF_LUMA_B + grad[1][i] * RF_LUMA_G + grad[2][i] * RF_LUMA_R;
+                grad[0][i] = grad[1][i] = grad[2][i] = gi;
+            }
+            p->val[0] = p->val[1] = p->val[2] = y;
+        }
         p->flat = 1;
         for (int c = 0; c < 3 && p->flat; c++)
             p->flat = grad[c][0] == 0 && grad[c][1] == 0 && grad[c][2] == 0;

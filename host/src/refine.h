@@ -25,6 +25,9 @@
 #define RF_DAMPING 1e-3
 #define RF_MAX_STEP_DEG 3.0
 #define RF_REF_D_OVER_R 12.5
+#define RF_LUMA_B 0.114               /* a gray frame sees the texture as its luma */
+#define RF_LUMA_G 0.587
+#define RF_LUMA_R 0.299
 
 /* The texture pyramid (finest RF_TEXTURE_WIDTH wide). */
 typedef struct rf_texture rf_texture;

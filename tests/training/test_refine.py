@@ -165,6 +165,17 @@ def test_residual_tells_the_right_texture_from_another(texture, pyramid):
     assert other.residual > 0.3
 
 
+def test_gray_frame_sees_the_texture_as_luma(texture, pyramid):
+    """A mono camera: the colour texture is compared as its luma, one channel or three equal."""
+    euler = (-8.0, 14.0, 22.0)
+    R_true = rf.euler_to_matrix(euler)
+    gray = cv2.cvtColor(synth_frame(texture, euler), cv2.COLOR_BGR2GRAY)
+    R0 = rf.rotvec_to_matrix(np.radians([0.3, -0.3, 0.2])) @ R_true
+    for frame in (gray, cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)):
+        out = rf.refine(frame, (320, 256, R_REF), R0, pyramid)
+        assert geodesic_deg(out.R, R_true) < 0.1 and out.residual < 0.03, out
+
+
 def test_no_steps_measures_the_residual_at_the_given_pose(texture, pyramid):
     euler = (0.0, 0.0, 0.0)
     frame = synth_frame(texture, euler)
@@ -209,6 +220,7 @@ def test_c_parameters_match(tmp_path):
     for name, value in (("RF_RHO_MAX", rf.RHO_MAX), ("RF_CROP_PAD", rf.CROP_PAD), ("RF_DAMPING", rf.DAMPING), ("RF_MAX_STEP_DEG", rf.MAX_STEP_DEG),
                         ("RF_REF_D_OVER_R", rf.REF_D_OVER_R), ("RF_TEXTURE_WIDTH", rf.TEXTURE_WIDTH)):
         assert float(define(name)) == value, name
+    assert (float(define("RF_LUMA_B")), float(define("RF_LUMA_G")), float(define("RF_LUMA_R"))) == rf.LUMA
     assert define("RF_META_TEXTURE") == f'"{rf.META_TEXTURE}"'
     assert define("RF_META_CONFIDENCE") == f'"{rf.META_CONFIDENCE}"'
 
