@@ -287,7 +287,8 @@ def get_args_parser():
                    help="train/val/test poses on the grid (without repetition) or uniform in the ranges "
                         "(any count, 3-decimal labels)")
     p.add_argument("--workers", type=_count, default=0, metavar="N",
-                   help="worker processes, one renderer each (0: every core)")
+                   help="worker processes, one renderer each (0: every core); with --engine ray: the CPUs "
+                        "of the local Ray instance, or on a cluster at most N tasks at a time (0: all its CPUs)")
     p.add_argument("--engine", choices=("local", "ray"), default="local",
                    help="local: worker processes on this machine; ray: Ray tasks on a cluster "
                         "(docs/cluster.md), the same frames byte for byte")

@@ -114,17 +114,20 @@ def render_shard(cfg, key, shard):
 def render(cfg, tasks, key, *, address=None, workers=None, on_frames=None, log=print):
     """Render `tasks` ((index, absolute path, pose)) on Ray; on_frames(n) after each finished shard.
 
-    workers: the CPUs of the local instance this starts when there is no address (0/None: every
-    core here); on a cluster, every CPU it has. Returns the cluster's CPU count."""
+    workers: without an address, the CPUs of the local instance this starts (0/None: every core
+    here); on a cluster, at most this many tasks at a time (0/None: as many as it has CPUs, with a
+    few more queued). Returns the CPUs used."""
     address = address or os.environ.get("RAY_ADDRESS") or None
     with connect(address, num_cpus=workers or None) as ray:
         cpus = cluster_cpus(ray)
+        limit = IN_FLIGHT_PER_CPU * cpus
+        if workers and address:     # a share of a cluster: exactly `workers` tasks at a time
+            cpus = limit = min(cpus, workers)
         log(f"ray: {len(tasks)} frames on {cpus} CPUs" + (f" of the cluster at {address}" if address else ""))
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(render_shard)
         cfg_ref = ray.put(cfg)
         pending = list(reversed(shards(tasks, cpus)))
         running = {}
-        limit = IN_FLIGHT_PER_CPU * cpus
         while pending or running:
             while pending and len(running) < limit:
                 shard = pending.pop()
