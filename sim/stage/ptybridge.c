@@ -12,6 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <termios.h>
+#include <sys/inotify.h>
 #include <unistd.h>
 
 #include "avr_uart.h"
@@ -153,7 +154,7 @@ int bridge_open(struct bridge *b, avr_t *avr, const char *link, char *err)
 
 	memset(b, 0, sizeof(*b));
 	b->avr = avr;
-	b->master = b->slave = -1;
+	b->master = b->slave = b->ino = -1;
 	b->uart = find_uart0(avr);
 	if (!b->uart) {
 		snprintf(err, ERR_LEN, "bridge_open: %s has no USART0", avr->mmcu);
@@ -221,14 +222,71 @@ fail:
 	return -1;
 }
 
+int bridge_watch_opens(struct bridge *b, char *err)
+{
+	b->ino = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
+	if (b->ino < 0) {
+		snprintf(err, ERR_LEN, "inotify_init1: %s", strerror(errno));
+		return -1;
+	}
+	/* our own descriptor on the slave is already open: only others count */
+	if (inotify_add_watch(b->ino, b->path, IN_OPEN | IN_CLOSE) < 0) {
+		snprintf(err, ERR_LEN, "inotify_add_watch(%s): %s", b->path, strerror(errno));
+		close(b->ino);
+		b->ino = -1;
+		return -1;
+	}
+	return 0;
+}
+
+int bridge_check_opens(struct bridge *b)
+{
+	char buf[4096] __attribute__((aligned(__alignof__(struct inotify_event))));
+	int reset = 0;
+	ssize_t n;
+
+	if (b->ino < 0)
+		return 0;
+	while ((n = read(b->ino, buf, sizeof(buf))) > 0) {
+		for (char *p = buf; p < buf + n; p += sizeof(struct inotify_event) + ((struct inotify_event *)p)->len) {
+			const struct inotify_event *e = (const struct inotify_event *)p;
+			if (e->mask & IN_OPEN) {
+				b->opens++;
+				/* the first client finds the chip just powered up (its
+				 * banner waits in the pty): as if it had been there */
+				if (b->clients++ == 0 && b->opens > 1)
+					reset = 1;
+			}
+			/* DTR drops when the last client closes. (A real port
+			 * keeps it up when HUPCL is off, but a pty starts with
+			 * HUPCL off and no client sets it: not modelled.) */
+			if ((e->mask & IN_CLOSE) && b->clients > 0)
+				b->clients--;
+		}
+	}
+	if (reset)
+		b->auto_resets++;
+	return reset;
+}
+
+void bridge_flush(struct bridge *b)
+{
+	b->rx_head = b->rx_len = 0;
+	b->tx_head = b->tx_len = 0;
+	tcflush(b->slave, TCIFLUSH);	/* firmware output the client has not read */
+	tcflush(b->master, TCIFLUSH);	/* client bytes the bridge has not read */
+}
+
 void bridge_close(struct bridge *b)
 {
 	if (b->link[0])
 		unlink(b->link);
+	if (b->ino >= 0)
+		close(b->ino);
 	if (b->slave >= 0)
 		close(b->slave);
 	if (b->master >= 0)
 		close(b->master);
-	b->slave = b->master = -1;
+	b->slave = b->master = b->ino = -1;
 	b->link[0] = 0;
 }

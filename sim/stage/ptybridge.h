@@ -29,8 +29,12 @@ struct bridge {
 	uint8_t txq[BRIDGE_TXQ];
 	size_t tx_head, tx_len;
 	uint64_t rx_bytes, tx_bytes, tx_dropped, xon;
-	int feeding;
-	unsigned baud_warned;		/* last baud rate we warned about */			/* guards against re-entry from the XON hook */
+	int feeding;			/* guards against re-entry from the XON hook */
+	unsigned baud_warned;		/* last baud rate we warned about */
+	/* auto-reset: a pty has no DTR, so opens of the slave are watched */
+	int ino;			/* inotify descriptor on the slave, -1: off */
+	int clients;			/* descriptors other processes hold on the slave */
+	uint64_t opens, auto_resets;
 };
 
 /* Open the pty (raw, no flush), hook USART0. link may be NULL. */
@@ -53,6 +57,20 @@ int bridge_want_write(const struct bridge *b);
  * U2X afterwards, as grbl does, would receive at half speed, and it always
  * counts a parity bit). Main loop, cheap. */
 void bridge_sync_baud(struct bridge *b);
+
+/* Auto-reset, as DTR does on an Uno: watch the slave for opens by other
+ * processes (inotify; opening the port is the one thing no client can skip,
+ * and what raises DTR on a USB serial adapter). Main loop. */
+int bridge_watch_opens(struct bridge *b, char *err);
+
+/* Take the open/close events; 1 when a client opened the port while no
+ * other had it open (DTR rises: the Uno resets), except the very first
+ * client, which finds the chip just powered up. Main loop. */
+int bridge_check_opens(struct bridge *b);
+
+/* Forget bytes of the previous session in both directions (queued here and
+ * in the pty), as a board held in reset neither hears nor says anything. */
+void bridge_flush(struct bridge *b);
 
 /* Close the pty and remove the link. */
 void bridge_close(struct bridge *b);

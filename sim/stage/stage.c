@@ -146,6 +146,9 @@ void stage_sync_limits(struct stage *s)
 		int bit = (s->avr->data[REG_LIMIT_PIN] >> (LIMIT_BIT0 + i)) & 1;
 		if (bit != level || a->limit_level_driven != level) {
 			a->limit_level_driven = level;
+			/* a reset clears the pin register but not the IRQ's last
+			 * value, and simavr drops a raise that repeats the value */
+			s->limit_irq[i]->value = (uint32_t)!level;
 			avr_raise_irq(s->limit_irq[i], (uint32_t)level);
 		}
 	}

@@ -23,6 +23,7 @@
 
 #include "sim_avr.h"
 #include "sim_elf.h"
+#include "sim_hex.h"
 #include "sim_core.h"
 #include "avr_uart.h"
 
@@ -53,6 +54,8 @@ struct options {
 	int dir_invert, step_invert;
 	int realtime;
 	int verbose;
+	int auto_reset;
+	const char *bootloader;
 };
 
 static volatile sig_atomic_t stop_requested;
@@ -92,6 +95,7 @@ static void usage(FILE *f)
 {
 	fprintf(f,
 "usage: stagesim [options] FIRMWARE.elf\n"
+"       stagesim [options] --bootloader optiboot_atmega328.hex [FIRMWARE.elf]\n"
 "  --state-socket PATH   serve the stage state on a Unix socket (see docs/interfaces.md)\n"
 "  --eeprom FILE         EEPROM image: loaded at start when present, saved on change and on exit\n"
 "  --link PATH           symlink PATH to the pty\n"
@@ -106,6 +110,9 @@ static void usage(FILE *f)
 "  --limit-bounce-us US  time between two bounces (default 200)\n"
 "  --dir-invert MASK     bit i set: DIR high is the positive direction on axis i (default 0, as grbl)\n"
 "  --step-invert MASK    bit i set: the STEP pulse is active low on axis i (default 0)\n"
+"  --no-auto-reset       opening the port does not reset the chip (default: it does, as DTR on an Uno)\n"
+"  --bootloader HEX      boot this bootloader (Optiboot) first, fuses as on the Uno; FIRMWARE.elf is then\n"
+"                        optional: without it the flash is blank until avrdude programs it over the pty\n"
 "  --realtime            pace simulated time to wall time (default)\n"
 "  --fast                run as fast as the host allows\n"
 "  --mcu NAME            MCU when the ELF names none (default atmega328p)\n"
@@ -174,7 +181,7 @@ static int parse_number(const char *opt, const char *arg, double *out, char *err
 static int parse_options(int argc, char **argv, struct options *o, char *err)
 {
 	enum { O_SOCKET = 256, O_EEPROM, O_LINK, O_SPD, O_START, O_LIMITS, O_LX, O_LY, O_LZ,
-	       O_LDIR, O_LWIDTH, O_LHYST, O_LBOUNCE, O_LBOUNCEUS, O_DIRINV, O_STEPINV, O_REALTIME, O_FAST, O_MCU, O_FREQ };
+	       O_LDIR, O_LWIDTH, O_LHYST, O_LBOUNCE, O_LBOUNCEUS, O_DIRINV, O_STEPINV, O_REALTIME, O_FAST, O_MCU, O_FREQ, O_NOAUTORESET, O_AUTORESET, O_BOOT };
 	static const struct option longopts[] = {
 		{ "state-socket", required_argument, 0, O_SOCKET },
 		{ "eeprom", required_argument, 0, O_EEPROM },
@@ -193,6 +200,9 @@ static int parse_options(int argc, char **argv, struct options *o, char *err)
 		{ "dir-invert", required_argument, 0, O_DIRINV },
 		{ "step-invert", required_argument, 0, O_STEPINV },
 		{ "realtime", no_argument, 0, O_REALTIME },
+		{ "no-auto-reset", no_argument, 0, O_NOAUTORESET },
+		{ "auto-reset", no_argument, 0, O_AUTORESET },
+		{ "bootloader", required_argument, 0, O_BOOT },
 		{ "fast", no_argument, 0, O_FAST },
 		{ "mcu", required_argument, 0, O_MCU },
 		{ "freq", required_argument, 0, O_FREQ },
@@ -207,6 +217,7 @@ static int parse_options(int argc, char **argv, struct options *o, char *err)
 	o->mcu = "atmega328p";
 	o->freq = 16000000;
 	o->realtime = 1;
+	o->auto_reset = 1;
 	o->limit_hyst = 0.05;
 	o->limit_bounce_us = 200;
 	for (int i = 0; i < STAGE_AXES; i++) {
@@ -306,6 +317,9 @@ static int parse_options(int argc, char **argv, struct options *o, char *err)
 			break;
 		}
 		case O_REALTIME: o->realtime = 1; break;
+		case O_NOAUTORESET: o->auto_reset = 0; break;
+		case O_AUTORESET: o->auto_reset = 1; break;
+		case O_BOOT: o->bootloader = optarg; break;
 		case O_FAST: o->realtime = 0; break;
 		case O_MCU: o->mcu = optarg; break;
 		case O_FREQ:
@@ -324,11 +338,83 @@ static int parse_options(int argc, char **argv, struct options *o, char *err)
 			return -1;
 		}
 	}
+	if (optind == argc && o->bootloader)
+		return 0;	/* a blank chip with its bootloader: avrdude fills it */
 	if (optind != argc - 1) {
 		snprintf(err, ERR_LEN, "need exactly one FIRMWARE.elf (see --help)");
 		return -1;
 	}
 	o->elf = argv[optind];
+	return 0;
+}
+
+/* A reset sets SP to RAMEND on silicon, and bootloaders built without C
+ * start-up code (Optiboot) rely on it; simavr 1.6 leaves SP at 0. */
+static void (*core_reset)(avr_t *avr);
+
+static void set_sp_ramend(avr_t *avr)
+{
+	avr->data[0x5d] = (uint8_t)(avr->ramend & 0xff);	/* SPL */
+	avr->data[0x5e] = (uint8_t)(avr->ramend >> 8);		/* SPH */
+}
+
+/* MCUSR: the cause of the last reset, which bootloaders and the firmware read */
+#define REG_MCUSR 0x54
+#define MCUSR_PORF 0x01
+#define MCUSR_EXTRF 0x02
+
+/* The RESET pin pulled low (the button, or DTR through the Uno's capacitor):
+ * the MCU restarts with EXTRF set, the motors stay where they are. */
+static void external_reset(avr_t *avr, struct stage *stage)
+{
+	avr_reset(avr);
+	avr->data[REG_MCUSR] |= MCUSR_EXTRF;
+	stage_sync_limits(stage);
+}
+
+static void reset_hook(avr_t *avr)
+{
+	if (core_reset)
+		core_reset(avr);
+	set_sp_ramend(avr);
+}
+
+/* The Uno's fuses: low 0xFF (16 MHz crystal), high 0xDE (BOOTRST on, boot
+ * section of 256 words at 0x7E00, SPIEN), extended 0xFD (brown-out 2.7 V). */
+#define UNO_LFUSE 0xff
+#define UNO_HFUSE 0xde
+#define UNO_EFUSE 0xfd
+#define UNO_BOOT_START 0x7e00	/* bytes; BOOTSZ = 11 in UNO_HFUSE */
+
+/* Put an Intel HEX bootloader into the boot section and start there on every
+ * reset, as BOOTRST does (simavr has no fuse logic of its own; its SPM
+ * support lets the bootloader write the application section). */
+static int load_bootloader(avr_t *avr, const char *path, char *err)
+{
+	ihex_chunk_p chunks = NULL;
+	int n = read_ihex_chunks(path, &chunks);
+
+	if (n <= 0) {
+		snprintf(err, ERR_LEN, "--bootloader %s: not a readable Intel HEX file", path);
+		return -1;
+	}
+	for (int i = 0; i < n; i++) {
+		if (chunks[i].baseaddr < UNO_BOOT_START || chunks[i].baseaddr + chunks[i].size > avr->flashend + 1) {
+			snprintf(err, ERR_LEN, "--bootloader %s: data at 0x%04x-0x%04x lies outside the Uno's boot "
+				 "section (0x%04x-0x%04x)", path, chunks[i].baseaddr,
+				 chunks[i].baseaddr + chunks[i].size - 1, UNO_BOOT_START, avr->flashend);
+			free_ihex_chunks(chunks);
+			return -1;
+		}
+		memcpy(avr->flash + chunks[i].baseaddr, chunks[i].data, chunks[i].size);
+	}
+	free_ihex_chunks(chunks);
+	avr->fuse[0] = UNO_LFUSE;
+	avr->fuse[1] = UNO_HFUSE;
+	avr->fuse[2] = UNO_EFUSE;
+	avr->reset_pc = UNO_BOOT_START;
+	avr->codeend = avr->flashend;	/* the application avrdude writes runs too */
+	avr->pc = UNO_BOOT_START;
 	return 0;
 }
 
@@ -357,18 +443,18 @@ static size_t handle_request(void *ctx, const char *req, char *out, size_t len)
 	if (!strcmp(req, "reset")) {
 		/* the reset button (or DTR auto-reset): the MCU restarts, the
 		 * motors stay where they are */
-		avr_reset(sim->avr);
-		stage_sync_limits(&sim->stage);
+		external_reset(sim->avr, &sim->stage);
 		return (size_t)snprintf(out, len, "{\"ok\": true}\n");
 	}
 	if (!strcmp(req, "uart")) {
 		return (size_t)snprintf(out, len,
 			"{\"rx_bytes\": %llu, \"tx_bytes\": %llu, \"tx_dropped\": %llu, \"rx_queued\": %zu, "
-			"\"xon\": %llu, \"cycles_per_byte\": %llu}\n",
+			"\"xon\": %llu, \"cycles_per_byte\": %llu, \"opens\": %llu, \"auto_resets\": %llu}\n",
 			(unsigned long long)sim->bridge.rx_bytes, (unsigned long long)sim->bridge.tx_bytes,
 			(unsigned long long)sim->bridge.tx_dropped, sim->bridge.rx_len,
 			(unsigned long long)sim->bridge.xon,
-			(unsigned long long)((avr_uart_t *)sim->bridge.uart)->cycles_per_byte);
+			(unsigned long long)((avr_uart_t *)sim->bridge.uart)->cycles_per_byte,
+			(unsigned long long)sim->bridge.opens, (unsigned long long)sim->bridge.auto_resets);
 	}
 	return (size_t)snprintf(out, len,
 		"{\"error\": \"unknown request; valid: state, stats, clear-stats, reset, uart\"}\n");
@@ -380,7 +466,7 @@ static int sim_setup(struct sim *sim, FILE *out, char *err)
 	struct options *o = &sim->opt;
 
 	memset(&fw, 0, sizeof(fw));
-	if (elf_read_firmware(o->elf, &fw) != 0) {
+	if (o->elf && elf_read_firmware(o->elf, &fw) != 0) {
 		snprintf(err, ERR_LEN, "elf_read_firmware(%s): cannot load", o->elf);
 		return -1;
 	}
@@ -389,7 +475,8 @@ static int sim_setup(struct sim *sim, FILE *out, char *err)
 	if (!fw.frequency)
 		fw.frequency = o->freq;
 	if (strcmp(fw.mmcu, "atmega328p") && strcmp(fw.mmcu, "atmega328")) {
-		snprintf(err, ERR_LEN, "%s: built for %s, the stage model is an atmega328p", o->elf, fw.mmcu);
+		snprintf(err, ERR_LEN, "%s: built for %s, the stage model is an atmega328p",
+			 o->elf ? o->elf : "--mcu", fw.mmcu);
 		return -1;
 	}
 	sim->avr = avr_make_mcu_by_name(fw.mmcu);
@@ -402,7 +489,16 @@ static int sim_setup(struct sim *sim, FILE *out, char *err)
 		return -1;
 	}
 	sim->avr->log = (uint8_t)verbose_level;
-	avr_load_firmware(sim->avr, &fw);
+	core_reset = sim->avr->reset;
+	sim->avr->reset = reset_hook;
+	set_sp_ramend(sim->avr);
+	sim->avr->data[REG_MCUSR] = MCUSR_PORF;	/* power-on */
+	if (o->elf)
+		avr_load_firmware(sim->avr, &fw);
+	else
+		sim->avr->frequency = fw.frequency;
+	if (o->bootloader && load_bootloader(sim->avr, o->bootloader, err) < 0)
+		return -1;
 	sim->avr->sleep = sleep_none;
 
 	for (int i = 0; i < STAGE_AXES; i++) {
@@ -428,6 +524,10 @@ static int sim_setup(struct sim *sim, FILE *out, char *err)
 	}
 	if (bridge_open(&sim->bridge, sim->avr, o->link, err) < 0)
 		return -1;
+	if (o->auto_reset && bridge_watch_opens(&sim->bridge, err) < 0) {
+		bridge_close(&sim->bridge);
+		return -1;
+	}
 	if (o->socket && srv_open(&sim->srv, o->socket, handle_request, sim, err) < 0) {
 		bridge_close(&sim->bridge);
 		return -1;
@@ -447,7 +547,7 @@ static int sim_run(struct sim *sim, char *err)
 	avr_t *avr = sim->avr;
 	double t0 = now_s(), last_save = t0;
 	avr_cycle_count_t c0 = avr->cycle;
-	struct pollfd fds[2 + SRV_CLIENTS];
+	struct pollfd fds[3 + SRV_CLIENTS];
 
 	while (!stop_requested) {
 		for (int i = 0; i < SLICE; i++) {
@@ -483,11 +583,22 @@ static int sim_run(struct sim *sim, char *err)
 		fds[n].events = (short)((bridge_want_read(&sim->bridge) ? POLLIN : 0) |
 					(bridge_want_write(&sim->bridge) ? POLLOUT : 0));
 		n++;
+		if (sim->bridge.ino >= 0) {
+			fds[n].fd = sim->bridge.ino;
+			fds[n].events = POLLIN;
+			n++;
+		}
 		n += srv_pollfds(&sim->srv, fds + n);
 		int r = poll(fds, (nfds_t)n, timeout);
 		if (r < 0 && errno != EINTR) {
 			snprintf(err, ERR_LEN, "poll: %s", strerror(errno));
 			return -1;
+		}
+		/* a client opened the port: DTR resets the chip (before its
+		 * bytes are read, so they reach the new session) */
+		if (sim->bridge.ino >= 0 && r > 0 && fds[1].revents && bridge_check_opens(&sim->bridge)) {
+			external_reset(avr, &sim->stage);
+			bridge_flush(&sim->bridge);
 		}
 		/* only touch descriptors poll(2) flagged: a syscall per slice is
 		 * cheap, four would cost a few percent of simulation speed */
@@ -495,7 +606,7 @@ static int sim_run(struct sim *sim, char *err)
 			if (bridge_poll_io(&sim->bridge, err) < 0)
 				return -1;
 		int srv_ready = 0;
-		for (int i = 1; i < n && r > 0; i++)
+		for (int i = sim->bridge.ino >= 0 ? 2 : 1; i < n && r > 0; i++)
 			srv_ready |= fds[i].revents != 0;
 		if (srv_ready)
 			srv_service(&sim->srv);
