@@ -10,8 +10,8 @@ photometric model absorbs what light does to colour: per channel c,
     I_c(p) ~ T_c(p) * (a0 + a1 n_x + a2 n_y + a3 n_z)_c + b_c
 
 (a gain with a first-order shading term, and an offset; solved by least squares at every step).
-Gauss-Newton steps over the rotation, the circle's centre and its radius then minimise the
-squared difference, coarse to fine on a pyramid of the frame and the texture. The residual is
+Levenberg-Marquardt steps over the rotation, the circle's centre and its radius then minimise
+the squared difference, coarse to fine on a pyramid of the frame and the texture. The residual is
 the fraction of the frame's variance inside the circle that the aligned texture does not explain
 (0: perfect, 1: no relation); with the pose checked against the model's ranges it decides
 whether the answer is confident. docs/refine.md gives the algorithm and the numbers.

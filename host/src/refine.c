@@ -3,10 +3,11 @@
  * Each step renders the texture analytically into the frame's geometry at
  * the sampled pixels (pinhole ray, sphere intersection, body direction R^T n,
  * bilinear texture lookup), fits the photometric model per channel by least
- * squares (I ~ T (a0 + a.n) + b), and takes a damped Gauss-Newton step over
- * the rotation (3), the circle's centre (2) and radius (1). Coarse to fine on
- * 2x2 box pyramids of the frame's crop and of the texture. Every arithmetic
- * choice follows the Python file so that both land on the same pose. */
+ * squares (I ~ T (a0 + a.n) + b), and takes a Levenberg-Marquardt step over
+ * the rotation (3), the circle's centre (2) and radius (1), with the
+ * photometric coefficients projected out. Coarse to fine on 2x2 box levels of
+ * the frame's crop and of the texture. Every step follows the Python file, so
+ * that both land on the same pose (docs/refine.md). */
 #define _POSIX_C_SOURCE 200809L
 #include "refine.h"
 #include "json.h"

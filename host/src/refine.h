@@ -46,7 +46,7 @@ typedef struct rf_out {
     double euler[3];       /* the same as (x, y, z) degrees */
     double cx, cy, r;      /* refined circle, continuous pixel coordinates */
     double residual;       /* unexplained fraction of the frame's variance, [0, 1] */
-    int iterations;        /* Gauss-Newton steps taken */
+    int iterations;        /* Levenberg-Marquardt steps kept */
 } rf_out;
 
 /* Texture from decoded pixels (an equirectangular image, width = 2 x height,
