@@ -137,11 +137,12 @@ def runtime_options(poseinfer):
     return {"camera_file": "--camera-file" in text}
 
 
-def run_poseinfer(args, folder, n, has_camera_file, bar):
-    """JSON result lines of poseinfer on every frame of `folder`, by file name."""
+def run_poseinfer(args, folder, camera_file, bar):
+    """(command, JSON result lines by file name, exit status, stderr) of poseinfer on every frame of
+    `folder`."""
     cmd = [args.poseinfer, "--model", args.model, "--timings", "--threads", str(args.threads)]
-    if args.camera and has_camera_file:
-        cmd += ["--camera-file", args.camera]
+    if camera_file:
+        cmd += ["--camera-file", camera_file]
     cmd.append(folder)
     results = {}
     with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as proc:
@@ -157,9 +158,37 @@ def run_poseinfer(args, folder, n, has_camera_file, bar):
             if bar:
                 bar.update(1)
         err = proc.stderr.read()
-    if proc.returncode not in (0, 1):
-        sys.exit(f"realscene: {' '.join(cmd)} failed (exit {proc.returncode}): {err.strip()[:500]}")
+    return cmd, results, proc.returncode, err
+
+
+def evaluate_folder(args, folder, camera_file, notes, bar):
+    """poseinfer on a folder; a model whose preprocessing takes no camera file runs without it."""
+    cmd, results, rc, err = run_poseinfer(args, folder, camera_file, bar)
+    if rc == 2 and camera_file and "camera file" in err:
+        note = f"the runtime refused --camera-file ({err.strip().splitlines()[-1][:200]}): run without it"
+        if note not in notes:
+            notes.append(note)
+        cmd, results, rc, err = run_poseinfer(args, folder, None, bar)
+    if rc not in (0, 1):
+        sys.exit(f"realscene: {' '.join(cmd)} failed (exit {rc}): {err.strip()[:500]}")
     return cmd, results
+
+
+def runtime_identity(poseinfer):
+    """What the runtime binary is: its build time and hash, and the commit of the tree with the state
+    of host/ (a binary built from changes not committed says so)."""
+    st = os.stat(poseinfer)
+    built = datetime.datetime.fromtimestamp(st.st_mtime, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    text = f"built {built}, sha256 {sha256(poseinfer)[:12]}…"
+    try:
+        head = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--", "host/src", "host/include"],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        text += f"; tree at {head}" + (", host/ sources with changes not committed" if dirty else "")
+    except OSError:
+        pass
+    return text
 
 
 CIRCLE_SOURCES = set()
@@ -300,6 +329,7 @@ def main(args):
         sys.exit(f"realscene: {e}")
     opts = runtime_options(args.poseinfer)
     notes = []
+    camera_file = args.camera if opts["camera_file"] else None
     if args.camera and not opts["camera_file"]:
         notes.append(f"this poseinfer has no --camera-file: it did not read {args.camera} (no undistortion)")
     try:
@@ -309,23 +339,29 @@ def main(args):
     bars = tqdm is not None and not args.no_progress
     os.makedirs(args.out, exist_ok=True)
     t0 = time.time()
-    rows_by_family, metrics, cmds = {}, {}, []
+    # Every family's frames first, then the runtime on all of them: one model and one binary for the table.
+    truths = {}
     for fam in args.families:
-        folder = os.path.join(args.out, fam)
         bar = tqdm(total=args.n, desc=f"render {fam}", unit="frame", leave=False) if bars else None
-        tpath = frames.write_family(folder, fam, args.n, args.seed, cam, args.texture, jobs=args.jobs,
-                                    supersample=args.supersample, progress=bar.update if bar else None)
+        tpath = frames.write_family(os.path.join(args.out, fam), fam, args.n, args.seed, cam, args.texture,
+                                    jobs=args.jobs, supersample=args.supersample,
+                                    progress=bar.update if bar else None)
         if bar:
             bar.close()
         with open(tpath, encoding="utf-8") as f:
-            truth = [json.loads(line) for line in f]
+            truths[fam] = [json.loads(line) for line in f]
+    t_render = time.time() - t0
+    model_sha = sha256(args.model)
+    runtime = runtime_identity(args.poseinfer)
+    rows_by_family, metrics, cmds = {}, {}, []
+    for fam in args.families:
         bar = tqdm(total=args.n, desc=f"poseinfer {fam}", unit="frame", leave=False) if bars else None
-        cmd, results = run_poseinfer(args, folder, args.n, opts["camera_file"], bar)
+        cmd, results = evaluate_folder(args, os.path.join(args.out, fam), camera_file, notes, bar)
         if bar:
             bar.close()
         cmds.append(" ".join(os.path.relpath(c, ROOT) if os.path.exists(c) else c for c in cmd))
         rows = []
-        for t in truth:
+        for t in truths[fam]:
             r = results.get(t["file"], {"error": "no result line"})
             answered = all(k in r for k in ("x", "y", "z"))
             rows.append({"file": t["file"], "pose": t["pose"], "circle": t["circle"],
@@ -337,8 +373,9 @@ def main(args):
         metrics[fam] = family_metrics(rows)
         m = metrics[fam]
         print(f"{fam}: MAE {fmt(m, 'mae', 3)}°, max {fmt(m, 'max')}°, answered {m['answered_pct']:.0f} %, "
-              f"flagged {m['flagged']}, "
-              f"centre {fmt(m, 'centre_median')} px", flush=True)
+              f"flagged {m['flagged']}, centre {fmt(m, 'centre_median')} px", flush=True)
+    if sha256(args.model) != model_sha:
+        notes.append("the model file changed during the run: the table mixes two models")
     elapsed = time.time() - t0
 
     with open(os.path.join(args.out, "results.jsonl"), "w", encoding="utf-8") as f:
@@ -351,10 +388,10 @@ def main(args):
     report = [
         "# Evaluation on independently rendered frames (bench/realscene.py)", "",
         f"- command: `{command.strip()}`",
-        f"- date: {datetime.datetime.now().strftime('%Y-%m-%d %H:%M')}; machine: {machine()}; "
-        f"{elapsed:.0f} s in all",
-        f"- model: `{os.path.relpath(args.model, ROOT)}` (sha256 {sha256(args.model)[:12]}…); "
-        f"runtime: `{cmds[0] if cmds else ''}`",
+        f"- date: {datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}; "
+        f"machine: {machine()}; {elapsed:.0f} s in all ({t_render:.0f} s rendering)",
+        f"- model: `{os.path.relpath(args.model, ROOT)}` (sha256 {model_sha[:12]}…)",
+        f"- runtime: `{cmds[0] if cmds else ''}` ({runtime})",
         f"- frames: {args.n} per family, seed {args.seed}, camera "
         f"{args.camera or 'reference'}, supersampling {args.supersample}x{args.supersample}",
         f"- sphere found: from {' and '.join(sorted(CIRCLE_SOURCES)) or 'nothing (the runtime reports no circle)'}",
