@@ -249,8 +249,8 @@ def scene_tags(scene):
 
 
 def breakdown(rows_by_family):
-    lines = ["| family | by | value | n | answered | MAE | max | centre err median (px) |",
-             "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    lines = ["| family | by | value | n | answered | flagged | MAE | max | centre err median (px) |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for fam, rows in rows_by_family.items():
         for by in ("backdrop", "mount"):
             groups = {}
@@ -260,7 +260,8 @@ def breakdown(rows_by_family):
                 continue
             for value in sorted(groups):
                 m = family_metrics(groups[value])
-                lines.append(f"| {fam} | {by} | {value} | {m['n']} | {m['answered_pct']:.0f} % | {fmt(m, 'mae', 3)} "
+                lines.append(f"| {fam} | {by} | {value} | {m['n']} | {m['answered_pct']:.0f} % | {m['flagged']} "
+                             f"| {fmt(m, 'mae', 3)} "
                              f"| {fmt(m, 'max')} | {fmt(m, 'centre_median')} |")
     return "\n".join(lines)
 
@@ -270,7 +271,8 @@ def worst(rows_by_family, k=3):
     for fam, rows in rows_by_family.items():
         bad = sorted(rows, key=lambda r: -1.0 if r["pred"] is None else -r["geo"])[:k]
         for r in bad:
-            what = r.get("error") or f"geodesic {r['geo']:.2f}°, pred {r['pred']}"
+            what = r.get("error") or (f"geodesic {r['geo']:.2f}°, pred {r['pred']}"
+                                      + (", flagged" if r.get("confident") is False else ""))
             lines.append(f"- {fam}/{r['file']}: {what}; {r['tags']['backdrop']} backdrop, mount {r['tags']['mount']}")
     return "\n".join(lines)
 
