@@ -40,13 +40,16 @@ typedef struct pi_options {
     long max_pixels;    /* refuse frames with more pixels; 0 = PI_DEFAULT_MAX_PIXELS */
     int no_refine;      /* 1: the network's angles, not refined (the residual still at them) */
     double focal_px;    /* camera focal length in pixels for refinement; 0 = from the circle */
+    const char *camera_file; /* camera file (docs/interfaces.md) for a sphere-crop-v2 model: expected
+                                sphere radius, lens distortion undone before localisation; NULL = none */
 } pi_options;
 
 typedef struct pi_result {
     double x, y, z;        /* Euler angles, degrees (conventions.md) */
     double rotmat[3][3];   /* body-to-world R, row-major; valid when has_rotmat */
     int has_rotmat;        /* 1 when the model has the `rotmat` output */
-    double cx, cy, r;      /* sphere found in the frame: centre and radius, pixels */
+    double cx, cy, r;      /* sphere found in the frame (undistorted with a camera file): centre
+                              (OpenCV pixel coordinates, pixel centres at integers) and radius, pixels */
     int width, height;     /* frame size, pixels */
     double decode_ms;      /* image decode (0 for raw frames) */
     double preprocess_ms;  /* find sphere, crop, resize, normalise */

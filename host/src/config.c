@@ -73,6 +73,7 @@ void config_free(pi_config *c)
     free(c->model);
     free(c->serve);
     free(c->camera);
+    free(c->camera_file);
     free(c->dump_tensor);
     free(c->socket_group);
     free(c->token_file);
@@ -131,6 +132,7 @@ int config_set(pi_config *c, const char *key_in, const char *v, char *err)
     if (!strcmp(key, "model")) return set_str(&c->model, v, err);
     if (!strcmp(key, "serve")) return set_str(&c->serve, v, err);
     if (!strcmp(key, "camera")) return set_str(&c->camera, v, err);
+    if (!strcmp(key, "camera_file")) return set_str(&c->camera_file, v, err);
     if (!strcmp(key, "continuous")) return set_bool(&c->continuous, key, v, err);
     if (!strcmp(key, "timings")) return set_bool(&c->timings, key, v, err);
     if (!strcmp(key, "refine")) return set_bool(&c->refine, key, v, err);

@@ -7,6 +7,7 @@ typedef struct pi_config {
     char *model;        /* model = FILE.onnx */
     char *serve;        /* serve = unix:PATH | tcp:127.0.0.1:PORT */
     char *camera;       /* camera = /dev/video0 | 0 | gst:... | unix:PATH */
+    char *camera_file;  /* camera_file = FILE: camera file for a sphere-crop-v2 model (radius, lens) */
     char *dump_tensor;  /* (flag only) write the input tensor of one image */
     int continuous;     /* continuous = yes|no: capture mode */
     long count;         /* count = N: frames in continuous mode (0 = until stopped) */

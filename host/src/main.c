@@ -41,6 +41,8 @@ static void usage(FILE *f)
         "  -c, --config FILE      read key = value settings from FILE\n"
         "  -s, --serve SPEC       serve the line protocol on unix:PATH or tcp:HOST:PORT [serve]\n"
         "      --camera SPEC      /dev/videoN, N, gst:PIPELINE or unix:PATH [camera]\n"
+        "      --camera-file FILE the camera's JSON file (sphere-crop-v2 models): its expected sphere\n"
+        "                         radius, and its lens distortion undone first [camera_file]\n"
         "      --continuous       capture and print one JSON line per frame [continuous]\n"
         "      --count N          stop after N frames in --continuous (default 0: run on) [count]\n"
         "      --interval-ms N    pause between continuous frames (default 0) [interval_ms]\n"
@@ -74,6 +76,7 @@ static const struct option long_opts[] = {
     {"config", required_argument, 0, 'c'},
     {"serve", required_argument, 0, 's'},
     {"camera", required_argument, 0, 1},
+    {"camera-file", required_argument, 0, 16},
     {"continuous", no_argument, 0, 2},
     {"count", required_argument, 0, 3},
     {"interval-ms", required_argument, 0, 4},
@@ -273,6 +276,7 @@ int main(int argc, char **argv)
         case 13: key = "workers"; break;
         case 14: key = "max_clients"; break;
         case 15: key = "idle_timeout_ms"; break;
+        case 16: key = "camera_file"; break;
         case 40: key = "refine"; val = "no"; break;
         case 'h': usage(stdout); rc = 0; goto out;
         default: usage(stderr); goto out;
@@ -311,6 +315,7 @@ int main(int argc, char **argv)
     o.warmup_runs = cfg.warmup;
     o.max_pixels = cfg.max_pixels;
     o.no_refine = !cfg.refine;
+    o.camera_file = cfg.camera_file;
     a.cfg = &cfg;
     a.started_ms = pi_now_ms();
     a.ctx = pi_open(cfg.model, &o, err);

@@ -102,6 +102,19 @@ void pi_options_init(pi_options *o)
     o->max_pixels = PI_DEFAULT_MAX_PIXELS;
     o->no_refine = 0;
     o->focal_px = 0;
+    o->camera_file = NULL;
+}
+
+/* The camera file (sphere-crop-v2 only): expected radius, undistortion. */
+static int load_camera(pi_ctx *ctx, const char *model, const char *path, char *err)
+{
+    if (ctx->pp.version != 2) {
+        pi_seterr(err, "pi_open(%s): the model's preprocessing is sphere-crop-v1, which takes no camera file (%s)",
+                  model, path);
+        return -1;
+    }
+    if (pp_camera_load(path, &ctx->pp.cam, err) < 0) return -1;
+    return shim_camera_prepare(&ctx->pp, err);
 }
 
 /* ---- preprocessing parameters from the metadata JSON --------------------- */
@@ -153,8 +166,14 @@ int pi_parse_preprocess(const char *text, pp_params *p, char *err, const char *m
         goto fail;
     }
     const json_value *name = json_get(&root, "name");
+    if (name && name->type == JSON_STRING && strcmp(name->string, "sphere-crop-v2") == 0) {
+        int rc = pp_parse_v2(&root, p, err, model);  /* pp_v2.c: every key, no defaults */
+        json_free(&root);
+        return rc;
+    }
     if (name && (name->type != JSON_STRING || strcmp(name->string, "sphere-crop-v1") != 0)) {
-        pi_seterr(err, "pi_open(%s): metadata %s: unknown preprocessing %s; this runtime implements \"sphere-crop-v1\"",
+        pi_seterr(err, "pi_open(%s): metadata %s: unknown preprocessing %s; this runtime implements "
+                  "\"sphere-crop-v1\" and \"sphere-crop-v2\"",
                   model, META_PREPROCESS, name->type == JSON_STRING ? name->string : "(not a string)");
         goto fail;
     }
@@ -442,6 +461,7 @@ pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
         }
     }
     if (read_metadata(ctx, model_path, err) < 0) goto fail;
+    if (opt->camera_file && load_camera(ctx, model_path, opt->camera_file, err) < 0) goto fail;
     if (check_contract(ctx, model_path, err) < 0) goto fail;
     if (setup_refine(ctx, model_path, opt, err) < 0) goto fail;
 
@@ -476,6 +496,7 @@ static void release_io(pi_ctx *ctx)
 static void destroy(pi_ctx *ctx)
 {
     release_io(ctx);
+    shim_camera_free(&ctx->pp);
     if (ctx->ort) {
         if (ctx->sess) ctx->ort->ReleaseSession(ctx->sess);
         if (ctx->opts) ctx->ort->ReleaseSessionOptions(ctx->opts);

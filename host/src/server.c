@@ -98,6 +98,9 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
     sb_puts(s, ", \"y\": "); sb_json_num(s, r->y, 4);
     sb_puts(s, ", \"z\": "); sb_json_num(s, r->z, 4);
     sb_puts(s, ", \"ms\": "); sb_json_num(s, r->total_ms, 3);
+    /* the sphere's circle, conventions' continuous pixels (docs/poseinfer.md) */
+    sb_puts(s, ", \"circle\": ["); sb_json_num(s, r->cx + 0.5, 3); sb_puts(s, ", ");
+    sb_json_num(s, r->cy + 0.5, 3); sb_puts(s, ", "); sb_json_num(s, r->r, 3); sb_puts(s, "]");
     /* docs/refine.md: null when the model carries no texture */
     sb_puts(s, r->has_confidence ? (r->confident ? ", \"confident\": true" : ", \"confident\": false")
                                  : ", \"confident\": null");
@@ -187,6 +190,7 @@ int app_reload(app *a, char *err)
     o.intra_threads = a->cfg->threads;
     o.warmup_runs = a->cfg->warmup;
     o.max_pixels = a->cfg->max_pixels;
+    o.camera_file = a->cfg->camera_file;
     n = pi_open(a->cfg->model, &o, err);
     if (!n) {
         pthread_mutex_unlock(&a->reload_lock);

@@ -1,6 +1,7 @@
 // shim.cpp -- OpenCV behind a C interface (shim.h). Every entry point
 // catches everything: no C++ exception ever reaches C code.
 #include "shim.h"
+#include "crop2.h"
 #include "kernels.h"
 
 #include <algorithm>
@@ -48,6 +49,8 @@ static void seterr_cv(char *err, const char *call, const cv::Exception &e)
 
 extern "C" void pp_defaults(pp_params *p)
 {
+    memset(p, 0, sizeof *p);
+    p->version = 1;
     p->size = 128;
     p->margin = 1.15;
     p->fg_threshold = 40;
@@ -236,6 +239,88 @@ static void add_rows(const cv::Mat &bgr, int r0, int r1, int c0, int c1,
     }
 }
 
+// Step 8: BGR -> RGB, /255, (v - mean) / std, CHW. Same float32 operations
+// in the same order as the Python reference, through a table.
+static void normalise(const unsigned char *small, size_t step, const pp_params *p, float *out)
+{
+    const int S = p->size;
+    float lut[3][256];
+    for (int c = 0; c < 3; c++)
+        for (int v = 0; v < 256; v++) {
+            float t = (float)v / 255.0f;
+            t = t - p->mean[c];
+            lut[c][v] = t / p->std[c];
+        }
+    const size_t plane = (size_t)S * S;
+    for (int y = 0; y < S; y++) {
+        const unsigned char *s = small + (size_t)y * step;
+        float *dr = out + (size_t)y * S, *dg = dr + plane, *db = dg + plane;
+        for (int x = 0; x < S; x++, s += 3) {
+            dr[x] = lut[0][s[2]];
+            dg[x] = lut[1][s[1]];
+            db[x] = lut[2][s[0]];
+        }
+    }
+}
+
+// sphere-crop-v2: undistort (camera with distortion), find the circle, crop.
+static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp_circle *circ, char *err)
+{
+    const cv::Mat *bgr = &bgr0;
+    cv::Mat und;
+    if (p->cam.set && (bgr0.cols != p->cam.width || bgr0.rows != p->cam.height)) {
+        char why[160];
+        snprintf(why, sizeof why, "frame is %dx%d, the camera file's calibration is for %dx%d", bgr0.cols,
+                 bgr0.rows, p->cam.width, p->cam.height);
+        seterr(err, "preprocess", why);
+        return -1;
+    }
+    if (p->undistort) {
+        const crop2::UndistortMap &m = *static_cast<const crop2::UndistortMap *>(p->undistort);
+        und.create(bgr0.rows, bgr0.cols, CV_8UC3);
+        crop2::remap(bgr0.data, bgr0.step[0], m, und.data);
+        bgr = &und;
+    }
+    double cx, cy, r;
+    char why[200];
+    if (crop2::find_sphere(bgr->data, bgr->cols, bgr->rows, bgr->step[0], p, &cx, &cy, &r, why, sizeof why) < 0) {
+        seterr(err, "preprocess", why);
+        return -1;
+    }
+    if (r * p->margin * 2 > 65536) {
+        seterr(err, "preprocess", "sphere too large");
+        return -1;
+    }
+    std::vector<unsigned char> small((size_t)p->size * p->size * 3);
+    crop2::crop(bgr->data, bgr->cols, bgr->rows, bgr->step[0], cx, cy, r, p, small.data());
+    normalise(small.data(), (size_t)p->size * 3, p, out);
+    circ->cx = cx;
+    circ->cy = cy;
+    circ->r = r;
+    for (int c = 0; c < 3; c++) circ->bg[c] = p->fill[c];
+    return 0;
+}
+
+extern "C" int shim_camera_prepare(pp_params *p, char *err)
+{
+    try {
+        shim_camera_free(p);
+        if (!p->cam.set || !p->cam.distorted) return 0;
+        crop2::UndistortMap *m = new crop2::UndistortMap();
+        crop2::undistort_map(&p->cam, p->cam.width, p->cam.height, m);
+        p->undistort = m;
+        return 0;
+    }
+    SHIM_CATCH("camera")
+    return -1;
+}
+
+extern "C" void shim_camera_free(pp_params *p)
+{
+    delete static_cast<const crop2::UndistortMap *>(p->undistort);
+    p->undistort = nullptr;
+}
+
 extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out,
                                pp_circle *circ, char *err)
 {
@@ -251,6 +336,7 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
         if (f->channels == 1) cv::cvtColor(src, bgr, cv::COLOR_GRAY2BGR);
         else if (f->channels == 4) cv::cvtColor(src, bgr, cv::COLOR_BGRA2BGR);
         else bgr = src;
+        if (p->version == 2) return preprocess_v2(bgr, p, out, circ, err);
 
         // 1. Background: per-channel median of the border band.
         const int mn = std::min(h, w);
@@ -353,25 +439,8 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
         if (!kern::resize_area_c3(roi.data, (int)side, (int)side, roi.step[0], small.data, S, S, small.step[0]))
             cv::resize(roi, small, cv::Size(S, S), 0, 0, cv::INTER_AREA);
 
-        // 8. BGR -> RGB, /255, (v - mean) / std, CHW. Same float32 operations
-        //    in the same order as the Python reference, through a table.
-        float lut[3][256];
-        for (int c = 0; c < 3; c++)
-            for (int v = 0; v < 256; v++) {
-                float t = (float)v / 255.0f;
-                t = t - p->mean[c];
-                lut[c][v] = t / p->std[c];
-            }
-        const size_t plane = (size_t)S * S;
-        for (int y = 0; y < S; y++) {
-            const unsigned char *s = small.ptr<unsigned char>(y);
-            float *dr = out + (size_t)y * S, *dg = dr + plane, *db = dg + plane;
-            for (int x = 0; x < S; x++, s += 3) {
-                dr[x] = lut[0][s[2]];
-                dg[x] = lut[1][s[1]];
-                db[x] = lut[2][s[0]];
-            }
-        }
+        // 8. Normalise.
+        normalise(small.data, small.step[0], p, out);
         circ->cx = cx;
         circ->cy = cy;
         circ->r = r;

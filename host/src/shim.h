@@ -1,5 +1,5 @@
 /* shim.h -- the C interface of the OpenCV C++ shim (shim.cpp): decoding,
- * preprocessing "sphere-crop-v1", VideoCapture, image writing. No C++ type
+ * preprocessing "sphere-crop-v1" and "-v2", VideoCapture, image writing. No C++ type
  * and no exception crosses this interface. */
 #ifndef PI_SHIM_H
 #define PI_SHIM_H
@@ -12,11 +12,36 @@
 extern "C" {
 #endif
 
-/* Preprocessing parameters (docs/interfaces.md, "sphere-crop-v1"). */
+/* A camera file (docs/interfaces.md, "Camera file"): set = 0 when none. */
+typedef struct pp_camera {
+    int set;
+    int width, height;
+    double focal_mm, pixel_mm, distance_mm, sphere_diameter_mm;
+    int has_principal;
+    double principal[2];    /* continuous pixel coordinates */
+    double distortion[5];   /* OpenCV k1 k2 p1 p2 k3 */
+    int distorted;          /* any coefficient non-zero */
+} pp_camera;
+
+/* Preprocessing parameters (docs/interfaces.md, "Preprocessing"): version 1
+ * ("sphere-crop-v1") or 2 ("sphere-crop-v2"), each with its own keys. */
 typedef struct pp_params {
+    int version;
     int size;
-    double margin, fg_threshold, border_frac, close_frac, min_area_frac;
+    double margin;
     float mean[3], std[3];
+    /* sphere-crop-v1 */
+    double fg_threshold, border_frac, close_frac, min_area_frac;
+    /* sphere-crop-v2 (names as in the metadata) */
+    double r_min_frac, r_max_frac, r_tol;
+    int coarse_size, candidates, rays, fine_passes, irls_iters;
+    double coarse_rbin, edge_min, cand_frac, ray_edge_min;
+    double consensus_cells, consensus_px, consensus_step_px, consensus_reach;
+    double fine_window_px, fine_window_frac, tukey_c, sigma_min_px, inlier_px;
+    double min_support, max_cut, mask_frac, fill[3];
+    /* the camera (v2): expected radius, undistortion; its map (shim_camera_prepare) */
+    pp_camera cam;
+    const void *undistort;
 } pp_params;
 
 /* Sphere found by steps 1-5, and the background colour of step 1. */
@@ -25,8 +50,22 @@ typedef struct pp_circle {
     double bg[3];
 } pp_circle;
 
-/* The defaults of docs/interfaces.md. */
+/* The v1 defaults of docs/interfaces.md (v2 has none: a v2 model's metadata
+ * holds every key). */
 void pp_defaults(pp_params *p);
+
+/* The v2 parameters from the metadata object (pp_v2.c): every key present,
+ * none unknown, each in its range; errors name the key and the model. */
+struct json_value;
+int pp_parse_v2(const struct json_value *root, pp_params *p, char *err, const char *model);
+
+/* Read a camera file (pp_v2.c). Errors name the file and the key. */
+int pp_camera_load(const char *path, pp_camera *cam, char *err);
+
+/* Build the undistortion map of p->cam (when it has distortion) into
+ * p->undistort; shim_camera_free releases it. */
+int shim_camera_prepare(pp_params *p, char *err);
+void shim_camera_free(pp_params *p);
 
 /* A holder for decoded pixels (a cv::Mat inside). */
 typedef struct shim_mat shim_mat;
@@ -43,8 +82,10 @@ int shim_probe_size(const unsigned char *buf, size_t len, long *w, long *h, char
 int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels,
                 pi_frame *out, char *err);
 
-/* Steps 1-8: frame -> out[3*size*size] (float32 CHW, RGB). Fills *c. The
- * no-sphere error text is exactly "no sphere found in frame". */
+/* Frame -> out[3*size*size] (float32 CHW, RGB), by p->version. Fills *c
+ * (v2: bg is the fill colour). Errors: "no sphere found in frame", and for
+ * v2 "two spheres in frame (...)", "sphere cut by the frame edge (...)",
+ * "frame is WxH, the camera file's calibration is for WxH". */
 int shim_preprocess(const pi_frame *f, const pp_params *p, float *out,
                     pp_circle *c, char *err);
 

@@ -7,7 +7,8 @@ so that its output depends on every input pixel, plus broken variants.
 Variants: good (euler_deg), rotmat (euler_deg + rotmat), nometa (no
 spherepose.preprocess), badmeta (preprocess JSON that does not parse),
 wrongshape (input [N, 1, S, S]), wrongout (euler_deg [N, 2]), wrongname
-(input called "input"), size64 (preprocess size 64, input 64x64).
+(input called "input"), size64 (preprocess size 64, input 64x64), v2 (as good, with
+preprocessing sphere-crop-v2).
 """
 import argparse
 import json
@@ -21,14 +22,14 @@ from onnx import TensorProto, helper, numpy_helper
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from training import preprocess  # noqa: E402
 
-VARIANTS = ["good", "rotmat", "nometa", "badmeta", "wrongshape", "wrongout", "wrongname", "size64"]
+VARIANTS = ["good", "rotmat", "nometa", "badmeta", "wrongshape", "wrongout", "wrongname", "size64", "v2"]
 
 
 def build(variant="good", seed=7):
     """An onnx.ModelProto of the given variant."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
-    pp = preprocess.params({"name": preprocess.NAME_V1})
+    pp = preprocess.params({"name": preprocess.NAME_V2 if variant == "v2" else preprocess.NAME_V1})
     if variant == "size64":
         pp["size"] = 64
     S = pp["size"]

@@ -14,7 +14,7 @@ from pihelpers import ROOT, sphere_frame
 
 cv2 = pytest.importorskip("cv2")
 
-KEYS = {"file", "x", "y", "z", "ms"}
+KEYS = {"file", "x", "y", "z", "ms", "circle"}  # circle: docs/poseinfer.md
 CONFIDENCE = {"confident", "residual", "note"}  # docs/refine.md; note only when not confident
 
 

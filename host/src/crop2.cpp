@@ -1,0 +1,819 @@
+// crop2.cpp -- preprocessing "sphere-crop-v2", see crop2.h. Each step
+// repeats training/preprocess.py's arithmetic in the same order (float64,
+// no fused multiply-add: -ffp-contract=off in the Makefile; sums in index
+// order; no libm function but sqrt and floor), so that the circle and the
+// crop are bit-identical to the Python reference.
+#include "crop2.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "kernels.h"
+
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define KERN2_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define KERN2_CLONES
+#endif
+
+
+namespace crop2 {
+
+namespace {
+
+// Working memory, kept between frames (per thread): fresh allocations of
+// these sizes cost more in page faults than the work itself.
+struct Scratch {
+    std::vector<int32_t> red, row, GX, GY, V, D, gx, gy, acc, box, hsum, vmax, bmax;
+    std::vector<int64_t> M;
+};
+thread_local Scratch scratch;
+
+template <class T> void fill(std::vector<T> &v, size_t n, T value)
+{
+    if (v.size() < n) v.resize(n);
+    std::fill(v.begin(), v.begin() + (long)n, value);
+}
+
+struct Cand {
+    double cx, cy, r;
+    long votes;
+};
+
+struct Found {
+    double cx, cy, r, support;
+};
+
+// Python's math.floor(x) for the values here (finite, well inside long).
+// (no libm call: truncation, then one down for negative non-integers; exact)
+inline long ifloor(double x)
+{
+    const long t = (long)x;
+    return (double)t > x ? t - 1 : t;
+}
+
+// ---- coarse stage -------------------------------------------------------------
+
+// out[i] = sum of rows[0..s)[i]: 16-bit sums while they cannot overflow
+// (s <= 257), twice the bytes per instruction of 32-bit ones.
+KERN2_CLONES void sum_rows(const uint8_t *p, size_t stride, int s, size_t n, int32_t *out)
+{
+    if (s <= 257) {
+        thread_local std::vector<uint16_t> t;
+        if (t.size() < n) t.resize(n);
+        uint16_t *a = t.data();
+        for (size_t i = 0; i < n; i++) a[i] = p[i];
+        for (int y = 1; y < s; y++) {
+            const uint8_t *q = p + (size_t)y * stride;
+            for (size_t i = 0; i < n; i++) a[i] = (uint16_t)(a[i] + q[i]);
+        }
+        for (size_t i = 0; i < n; i++) out[i] = a[i];
+        return;
+    }
+    for (size_t i = 0; i < n; i++) out[i] = 0;
+    for (int y = 0; y < s; y++) {
+        const uint8_t *q = p + (size_t)y * stride;
+        for (size_t i = 0; i < n; i++) out[i] += q[i];
+    }
+}
+
+// Block means of s x s blocks, rounded half up; the remainder dropped.
+void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<int32_t> &red, int *hs, int *ws)
+{
+    *hs = h / s;
+    *ws = w / s;
+    red.resize((size_t)*hs * *ws * 3);
+    const int32_t n = s * s, half = n / 2;
+    const size_t nbytes = (size_t)*ws * s * 3;
+    std::vector<int32_t> &row = scratch.row;
+    row.resize(nbytes);
+    for (int Y = 0; Y < *hs; Y++) {
+        sum_rows(bgr + (size_t)Y * s * stride, stride, s, nbytes, row.data());
+        int32_t *o = &red[(size_t)Y * *ws * 3];
+        for (int X = 0; X < *ws; X++) {
+            const int32_t *q = &row[(size_t)X * s * 3];
+            int32_t b = 0, g = 0, r = 0;
+            for (int xx = 0; xx < s; xx++, q += 3) {
+                b += q[0];
+                g += q[1];
+                r += q[2];
+            }
+            o[3 * X] = (b + half) / n;  // non-negative: / floors
+            o[3 * X + 1] = (g + half) / n;
+            o[3 * X + 2] = (r + half) / n;
+        }
+    }
+}
+
+struct Edges {
+    std::vector<int32_t> x, y, gx, gy;
+};
+
+// Sobel per channel on the reduced image, the channel of the largest
+// gx^2 + gy^2 (first on ties), at least edge_min^2, not below either
+// neighbour across the edge (direction in four classes, integer tests).
+// Sobel as its separable parts: V = r[y-1] + 2 r[y] + r[y+1] and D = r[y+1] -
+// r[y-1] per byte, then gx = V[x+1] - V[x-1], gy = D[x-1] + 2 D[x] + D[x+1].
+void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edges &e)
+{
+    const int gh = hs - 2, gw = ws - 2;
+    const size_t P = (size_t)gw + 2;
+    std::vector<int64_t> &M = scratch.M;  // padded magnitude^2
+    fill(M, (size_t)(gh + 2) * P, (int64_t)0);
+    std::vector<int32_t> &GX = scratch.GX, &GY = scratch.GY, &V = scratch.V, &D = scratch.D, &gx = scratch.gx,
+                         &gy = scratch.gy;
+    const size_t nb = (size_t)ws * 3;
+    GX.resize((size_t)gh * gw);
+    GY.resize((size_t)gh * gw);
+    V.resize(nb);
+    D.resize(nb);
+    gx.resize((size_t)gw * 3);
+    gy.resize((size_t)gw * 3);
+    for (int i = 0; i < gh; i++) {
+        const int32_t *r0 = &red[(size_t)i * nb], *r1 = r0 + nb, *r2 = r1 + nb;
+        for (size_t k = 0; k < nb; k++) {
+            V[k] = r0[k] + 2 * r1[k] + r2[k];
+            D[k] = r2[k] - r0[k];
+        }
+        for (size_t k = 0; k < (size_t)gw * 3; k++) {
+            gx[k] = V[k + 6] - V[k];
+            gy[k] = D[k] + 2 * D[k + 3] + D[k + 6];
+        }
+        int64_t *m = &M[(size_t)(i + 1) * P + 1];
+        int32_t *ox = &GX[(size_t)i * gw], *oy = &GY[(size_t)i * gw];
+        for (int j = 0; j < gw; j++) {
+            int64_t bm = -1;
+            int32_t bx = 0, by = 0;
+            for (int c = 0; c < 3; c++) {
+                const int64_t x = gx[3 * (size_t)j + c], y = gy[3 * (size_t)j + c];
+                const int64_t m2 = x * x + y * y;
+                if (m2 > bm) { bm = m2; bx = (int32_t)x; by = (int32_t)y; }
+            }
+            m[j] = bm;
+            ox[j] = bx;
+            oy[j] = by;
+        }
+    }
+    const double emin2 = edge_min * edge_min;
+    for (int i = 0; i < gh; i++) {
+        for (int j = 0; j < gw; j++) {
+            const size_t c = (size_t)(i + 1) * P + (j + 1);
+            const int64_t m = M[c];
+            if (!((double)m >= emin2)) continue;
+            const int64_t gxv = GX[(size_t)i * gw + j], gyv = GY[(size_t)i * gw + j];
+            const int64_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
+            int64_t a, b;
+            if (5 * ay <= 2 * ax) { a = M[c - 1]; b = M[c + 1]; }
+            else if (5 * ax <= 2 * ay) { a = M[c - P]; b = M[c + P]; }
+            else if ((gxv > 0) == (gyv > 0)) { a = M[c - P - 1]; b = M[c + P + 1]; }
+            else { a = M[c - P + 1]; b = M[c + P - 1]; }
+            if (m >= a && m >= b) {
+                e.x.push_back(j + 1);
+                e.y.push_back(i + 1);
+                e.gx.push_back((int32_t)gxv);
+                e.gy.push_back((int32_t)gyv);
+            }
+        }
+    }
+}
+
+// Radius (reduced pixels) about centre (Xc, Yc) between lo and hi: histogram
+// of the distances of the edges whose gradient points along the radius,
+// smoothed 1-2-1. -1 when there is none.
+long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
+{
+    std::vector<long> hist((size_t)(hi - lo + 3), 0);  // padded by one bin each side
+    bool any = false;
+    for (size_t i = 0; i < e.x.size(); i++) {
+        const int64_t dx = e.x[i] - Xc, dy = e.y[i] - Yc, gx = e.gx[i], gy = e.gy[i];
+        const int64_t d2 = dx * dx + dy * dy, dot = dx * gx + dy * gy, m2 = gx * gx + gy * gy;
+        if (!(100 * dot * dot >= 81 * d2 * m2)) continue;
+        const long b = ifloor(std::sqrt((double)d2) + 0.5);
+        if (b < lo || b > hi) continue;
+        hist[(size_t)(b - lo + 1)]++;
+        any = true;
+    }
+    if (!any) return -1;
+    long best = -1, bi = 0;
+    for (long i = 0; i <= hi - lo; i++) {
+        const long v = hist[(size_t)i] + 2 * hist[(size_t)i + 1] + hist[(size_t)i + 2];
+        if (v > best) { best = v; bi = i; }
+    }
+    return lo + bi;
+}
+
+// The cells an edge at (x, y) with unit gradient (ux, uy) votes for at signed
+// radii sr[k]: floor(x - sr ux + 0.5), floor(y - sr uy + 0.5) as Y * ws + X,
+// -1 outside. Its own loop so that it vectorises.
+KERN2_CLONES void vote_cells(const double *sr, int n, double x, double y, double ux, double uy, int ws, int hs,
+                             int32_t *cell)
+{
+    for (int k = 0; k < n; k++) {
+        const double X = std::floor(x - sr[k] * ux + 0.5), Y = std::floor(y - sr[k] * uy + 0.5);
+        const bool in = X >= 0.0 && X < (double)ws && Y >= 0.0 && Y < (double)hs;
+        cell[k] = in ? (int32_t)Y * ws + (int32_t)X : -1;
+    }
+}
+
+// Candidate circles, strongest first; *s_out the reduction.
+std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p, double rmin,
+                         double rmax, int *s_out)
+{
+    std::vector<Cand> out;
+    const int s = std::max(1, std::min(h, w) / p->coarse_size);
+    *s_out = s;
+    int hs, ws;
+    std::vector<int32_t> red;
+    reduce(bgr, stride, w, h, s, red, &hs, &ws);
+    if (hs < 8 || ws < 8) return out;
+    Edges e;
+    edges(red, hs, ws, p->edge_min, e);
+    if (e.x.empty()) return out;
+    const long lo = std::max(1L, ifloor(rmin / s));
+    const long hi = ifloor(rmax / s) + 1;
+    if (hi < lo) return out;
+    // radius bins about coarse_rbin * radius wide
+    std::vector<int> bins;
+    std::vector<long> start;
+    {
+        long st = lo;
+        int b = 0;
+        start.push_back(lo);
+        for (long rho = lo; rho <= hi; rho++) {
+            if ((double)rho > (double)st * (1.0 + p->coarse_rbin) && rho - st >= 2) {
+                b++;
+                st = rho;
+                start.push_back(rho);
+            }
+            bins.push_back(b);
+        }
+        start.push_back(hi + 1);
+    }
+    const int nb = bins.back() + 1;
+    const size_t plane = (size_t)hs * ws;
+    std::vector<int32_t> &acc = scratch.acc;
+    fill(acc, (size_t)nb * plane, 0);
+    const int nr = (int)(hi - lo + 1);
+    std::vector<double> srs(2 * (size_t)nr);
+    std::vector<int32_t> cell(2 * (size_t)nr), boff(2 * (size_t)nr);
+    for (int sg = 0; sg < 2; sg++)
+        for (int k = 0; k < nr; k++) {
+            srs[(size_t)sg * nr + k] = (sg == 0 ? 1.0 : -1.0) * (double)(lo + k);
+            boff[(size_t)sg * nr + k] = (int32_t)((size_t)bins[(size_t)k] * plane);
+        }
+    for (size_t i = 0; i < e.x.size(); i++) {
+        const double gx = e.gx[i], gy = e.gy[i];
+        const double m = std::sqrt((double)((int64_t)e.gx[i] * e.gx[i] + (int64_t)e.gy[i] * e.gy[i]));
+        vote_cells(srs.data(), 2 * nr, e.x[i], e.y[i], gx / m, gy / m, ws, hs, cell.data());
+        for (int k = 0; k < 2 * nr; k++)
+            if (cell[(size_t)k] >= 0) acc[(size_t)boff[(size_t)k] + (size_t)cell[(size_t)k]]++;
+    }
+    // 3 x 3 box sums per bin (zeros outside), then each bin plus the next;
+    // per cell its best bin (first on ties)
+    const int pw = ws + 2;
+    std::vector<int32_t> &row = scratch.row, &box = scratch.box, &hsum = scratch.hsum;
+    row.resize((size_t)pw);
+    fill(box, (size_t)(nb + 1) * plane, 0);
+    fill(hsum, (size_t)(hs + 2) * ws, 0);  // horizontal 3-sums, a zero row each side
+    for (int b = 0; b < nb; b++) {
+        const int32_t *a = &acc[(size_t)b * plane];
+        int32_t *o = &box[(size_t)b * plane];
+        for (int Y = 0; Y < hs; Y++) {
+            row[0] = row[(size_t)pw - 1] = 0;
+            std::copy(a + (size_t)Y * ws, a + (size_t)(Y + 1) * ws, row.begin() + 1);
+            int32_t *hrow = &hsum[(size_t)(Y + 1) * ws];
+            for (int X = 0; X < ws; X++) hrow[X] = row[(size_t)X] + row[(size_t)X + 1] + row[(size_t)X + 2];
+        }
+        for (int Y = 0; Y < hs; Y++) {
+            const int32_t *u = &hsum[(size_t)Y * ws], *c = u + ws, *d = c + ws;
+            int32_t *orow = o + (size_t)Y * ws;
+            for (int X = 0; X < ws; X++) orow[X] = u[X] + c[X] + d[X];
+        }
+    }
+    std::vector<int32_t> &vmax = scratch.vmax, &bmax = scratch.bmax;
+    fill(vmax, plane, -1);
+    fill(bmax, plane, 0);
+    for (int b = 0; b < nb; b++) {
+        const int32_t *a = &box[(size_t)b * plane], *n = &box[(size_t)(b + 1) * plane];
+        int32_t *vm = vmax.data(), *bm = bmax.data();
+        for (size_t c = 0; c < plane; c++) {
+            const int32_t v = a[c] + n[c];
+            const bool gt = v > vm[c];
+            vm[c] = gt ? v : vm[c];
+            bm[c] = gt ? b : bm[c];
+        }
+    }
+    const double sup = 0.5 * (double)lo;
+    long best = -1;
+    for (int k = 0; k < p->candidates; k++) {
+        size_t ci = 0;
+        int32_t v = vmax[0];
+        for (size_t c = 1; c < plane; c++)
+            if (vmax[c] > v) { v = vmax[c]; ci = c; }
+        if (v <= 0 || (best >= 0 && (double)v < p->cand_frac * (double)best)) break;
+        if (best < 0) best = v;
+        const long Yc = (long)(ci / ws), Xc = (long)(ci % ws);
+        const int b = bmax[ci];
+        const long r_s = radius_vote(e, Xc, Yc, start[(size_t)b], start[(size_t)std::min(b + 2, nb)] - 1);
+        if (r_s >= 0) {
+            const double off = (s - 1) / 2.0;
+            out.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
+        }
+        const long R = ifloor(sup) + 1;
+        for (long Y = std::max(0L, Yc - R); Y <= std::min((long)hs - 1, Yc + R); Y++)
+            for (long X = std::max(0L, Xc - R); X <= std::min((long)ws - 1, Xc + R); X++) {
+                const long d2 = (X - Xc) * (X - Xc) + (Y - Yc) * (Y - Yc);
+                if ((double)d2 <= sup * sup) vmax[(size_t)Y * ws + X] = 0;
+            }
+    }
+    return out;
+}
+
+// ---- fine stage -----------------------------------------------------------------
+
+struct Frame {
+    const uint8_t *p;
+    size_t stride;
+    int w, h;
+};
+
+// Bilinear sample of 3 channels at (X, Y); false when a corner is outside.
+inline bool sample(const Frame &f, double X, double Y, double v[3])
+{
+    // inside means X, Y in [0, w - 1) x [0, h - 1): truncation is the floor there
+    if (!(X >= 0.0 && Y >= 0.0 && X < f.w - 1 && Y < f.h - 1)) return false;
+    const double x0 = (double)(long)X, y0 = (double)(long)Y;
+    const double fx = X - x0, fy = Y - y0;
+    const uint8_t *a = f.p + (size_t)y0 * f.stride + 3 * (size_t)x0, *b = a + f.stride;
+    for (int c = 0; c < 3; c++) {
+        const double p00 = a[c], p01 = a[3 + c], p10 = b[c], p11 = b[3 + c];
+        const double top = p00 + fx * (p01 - p00);
+        const double bot = p10 + fx * (p11 - p10);
+        v[c] = top + fy * (bot - top);
+    }
+    return true;
+}
+
+// Edge candidates per ray (see preprocess.py _ray_edges): ok[k] false for a
+// ray that leaves the frame; cands of ray k in cand[off[k] .. off[k + 1]).
+struct RayEdges {
+    std::vector<char> ok;
+    std::vector<int> off;
+    std::vector<double> cand;
+};
+
+void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r, double win,
+               double thr, RayEdges &re)
+{
+    const int K = (int)dirs.size() / 2;
+    const long m = ifloor(win * 2.0);
+    const long n = 2 * m + 1;
+    re.ok.assign((size_t)K, 0);
+    re.off.assign((size_t)K + 1, 0);
+    re.cand.clear();
+    std::vector<double> rho((size_t)n + 2), v((size_t)(n + 2) * 3), score((size_t)n);
+    for (long j = 0; j < n + 2; j++) rho[(size_t)j] = r + ((double)(j - 1) - (double)m) * 0.5;
+    for (int k = 0; k < K; k++) {
+        re.off[(size_t)k] = (int)re.cand.size();
+        const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+        bool good = true;
+        for (long j = 0; j < n + 2 && good; j++) {
+            const double X = cx + rho[(size_t)j] * ux, Y = cy + rho[(size_t)j] * uy;
+            good = sample(f, X, Y, &v[3 * (size_t)j]);
+        }
+        if (!good) continue;
+        re.ok[(size_t)k] = 1;
+        for (long i = 0; i < n; i++) {
+            const double *a = &v[3 * (size_t)i], *b = &v[3 * (size_t)(i + 2)];
+            const double d0 = std::fabs(b[0] - a[0]), d1 = std::fabs(b[1] - a[1]), d2 = std::fabs(b[2] - a[2]);
+            score[(size_t)i] = std::max(std::max(d0, d1), d2);
+        }
+        for (long i = 1; i < n - 1; i++) {
+            const double c = score[(size_t)i], a = score[(size_t)i - 1], b = score[(size_t)i + 1];
+            if (!(c >= thr && c >= a && c > b)) continue;
+            const double den = a - 2.0 * c + b;
+            const double o = den < 0.0 ? 0.5 * (a - b) / den : 0.0;
+            re.cand.push_back(rho[(size_t)i + 1] + o * 0.5);
+        }
+    }
+    re.off[(size_t)K] = (int)re.cand.size();
+}
+
+bool solve3(const double M[9], const double v[3], double x[3])
+{
+    const double a = M[0], b = M[1], c = M[2], d = M[3], e = M[4], f = M[5], g = M[6], h = M[7], i = M[8];
+    const double co0 = e * i - f * h, co1 = f * g - d * i, co2 = d * h - e * g;
+    const double det = a * co0 + b * co1 + c * co2;
+    if (!(std::fabs(det) > 1e-300)) return false;
+    const double p = v[0], q = v[1], r = v[2];
+    x[0] = (p * co0 + b * (f * r - q * i) + c * (q * h - e * r)) / det;
+    x[1] = (a * (q * i - f * r) + p * co1 + c * (d * r - q * g)) / det;
+    x[2] = (a * (e * r - q * h) + b * (q * g - d * r) + p * co2) / det;
+    return true;
+}
+
+bool kasa(const std::vector<double> &x, const std::vector<double> &y, const std::vector<double> &wts, double *cx,
+          double *cy, double *r)
+{
+    double sw = 0, sxx = 0, syy = 0, sxy = 0, sx = 0, sy = 0, sxz = 0, syz = 0, sz = 0;
+    for (size_t i = 0; i < x.size(); i++) {
+        const double wi = wts[i];
+        if (wi == 0.0) continue;
+        const double xi = x[i], yi = y[i];
+        const double zi = xi * xi + yi * yi;
+        sw += wi;
+        sx += wi * xi;
+        sy += wi * yi;
+        sxx += wi * xi * xi;
+        syy += wi * yi * yi;
+        sxy += wi * xi * yi;
+        sxz += wi * xi * zi;
+        syz += wi * yi * zi;
+        sz += wi * zi;
+    }
+    const double M[9] = {sxx, sxy, sx, sxy, syy, sy, sx, sy, sw}, v[3] = {sxz, syz, sz};
+    double s[3];
+    if (!solve3(M, v, s)) return false;
+    const double ccx = s[0] / 2.0, ccy = s[1] / 2.0;
+    const double rr = s[2] + ccx * ccx + ccy * ccy;
+    if (!(rr > 0.0)) return false;
+    *cx = ccx;
+    *cy = ccy;
+    *r = std::sqrt(rr);
+    return true;
+}
+
+double median_abs(std::vector<double> v)
+{
+    std::sort(v.begin(), v.end());
+    const size_t n = v.size();
+    return (v[(n - 1) / 2] + v[n / 2]) / 2.0;
+}
+
+// Tukey-reweighted circle through the candidate nearest the current circle on
+// each ray (preprocess.py _fit_rays). Rays from (ox, oy).
+bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, double oy, double *pcx, double *pcy,
+              double *pr, const pp_params *p)
+{
+    const int K = (int)dirs.size() / 2;
+    double cx = *pcx - ox, cy = *pcy - oy, r = *pr;
+    std::vector<double> xs, ys, res, ares, wts;
+    xs.reserve((size_t)K);
+    ys.reserve((size_t)K);
+    res.reserve((size_t)K);
+    for (int it = 0; it < p->irls_iters; it++) {
+        xs.clear();
+        ys.clear();
+        res.clear();
+        for (int k = 0; k < K; k++) {
+            const int a = re.off[(size_t)k], b = re.off[(size_t)k + 1];
+            if (!re.ok[(size_t)k] || a == b) continue;
+            const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+            double best = 0.0, be = -1.0, bres = 0.0;
+            for (int i = a; i < b; i++) {
+                const double rho = re.cand[(size_t)i];
+                const double px = rho * ux, py = rho * uy;
+                const double e = std::sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r;
+                if (be < 0.0 || std::fabs(e) < be) { best = rho; be = std::fabs(e); bres = e; }
+            }
+            xs.push_back(best * ux);
+            ys.push_back(best * uy);
+            res.push_back(bres);
+        }
+        if (xs.size() < 8) return false;
+        ares.resize(res.size());
+        for (size_t i = 0; i < res.size(); i++) ares[i] = std::fabs(res[i]);
+        const double sigma = std::max(p->sigma_min_px, 1.4826 * median_abs(ares));
+        const double cut = p->tukey_c * sigma;
+        wts.resize(res.size());
+        for (size_t i = 0; i < res.size(); i++) {
+            const double u = res[i] / cut;
+            wts[i] = (-1.0 < u && u < 1.0) ? (1.0 - u * u) * (1.0 - u * u) : 0.0;
+        }
+        if (!kasa(xs, ys, wts, &cx, &cy, &r)) return false;
+    }
+    *pcx = cx + ox;
+    *pcy = cy + oy;
+    *pr = r;
+    return true;
+}
+
+// Radius bin of each candidate for one centre shift: floor(((rho - dot) -
+// base) / step), Python's order; a loop of its own so that it vectorises.
+KERN2_CLONES void bin_indices(const double *rho, const double *ux, const double *uy, size_t n, double DX, double DY,
+                              double base, double step, int32_t *bi)
+{
+    for (size_t i = 0; i < n; i++) {
+        const double dot = DX * ux[i] + DY * uy[i];
+        bi[i] = (int32_t)std::floor(((rho[i] - dot) - base) / step);
+    }
+}
+
+// The (shift, radius) most rays agree on (preprocess.py _consensus): for
+// each shift on the grid, the radius bin of each candidate, then the
+// fullest bin; first in grid order, then bin order, on ties.
+bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, double win, double step, double *dx,
+               double *dy, double *rr)
+{
+    const int K = (int)dirs.size() / 2;
+    const long W = ifloor(win / step);
+    const double base = r - ((double)W * step + win) - step;
+    const long nb = ifloor(2.0 * ((double)W * step + win) / step) + 3;
+    std::vector<double> ux, uy, rho;
+    for (int k = 0; k < K; k++) {
+        if (!re.ok[(size_t)k]) continue;
+        for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++) {
+            ux.push_back(dirs[2 * (size_t)k]);
+            uy.push_back(dirs[2 * (size_t)k + 1]);
+            rho.push_back(re.cand[(size_t)i]);
+        }
+    }
+    const size_t n = rho.size();
+    if (n == 0) return false;
+    const long G = 2 * W + 1;
+    std::vector<int32_t> hist((size_t)nb), bi(n);
+    long best = 0, bg = -1, bb = 0;
+    for (long g = 0; g < G * G; g++) {
+        const double DY = (double)(g / G - W) * step, DX = (double)(g % G - W) * step;
+        bin_indices(rho.data(), ux.data(), uy.data(), n, DX, DY, base, step, bi.data());
+        std::fill(hist.begin(), hist.end(), 0);
+        for (size_t i = 0; i < n; i++)
+            if (bi[i] >= 0 && bi[i] < nb) hist[(size_t)bi[i]]++;
+        for (long b = 0; b < nb; b++)
+            if (hist[(size_t)b] > best) { best = hist[(size_t)b]; bg = g; bb = b; }
+    }
+    if (bg < 0) return false;
+    *dx = (double)(bg % G - W) * step;
+    *dy = (double)(bg / G - W) * step;
+    *rr = base + ((double)bb + 0.5) * step;
+    return true;
+}
+
+// Fraction of all rays with an edge candidate within inlier_px of r.
+double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r, const pp_params *p,
+               RayEdges &re)
+{
+    const int K = (int)dirs.size() / 2;
+    ray_edges(f, dirs, cx, cy, r, p->inlier_px + 1.0, p->ray_edge_min, re);
+    int n = 0;
+    for (int k = 0; k < K; k++) {
+        if (!re.ok[(size_t)k]) continue;
+        for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++)
+            if (std::fabs(re.cand[(size_t)i] - r) <= p->inlier_px) { n++; break; }
+    }
+    return (double)n / K;
+}
+
+// Refine a coarse circle (preprocess.py _fine). False: none.
+bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s, const pp_params *p, Found *out)
+{
+    double cx = c.cx, cy = c.cy, r = c.r;
+    RayEdges re;
+    for (int ps = 0; ps < p->fine_passes; ps++) {
+        // first pass: the shift grid covers the coarse centre's error, the rays reach farther
+        const double win = ps == 0 ? p->consensus_cells * s + p->consensus_px
+                                   : p->fine_window_px + p->fine_window_frac * r;
+        ray_edges(f, dirs, cx, cy, r, ps == 0 ? p->consensus_reach * win : win, p->ray_edge_min, re);
+        double sx = cx, sy = cy, sr = r;
+        if (ps == 0) {
+            double dx, dy, rr;
+            if (!consensus(re, dirs, r, win, p->consensus_step_px, &dx, &dy, &rr)) return false;
+            sx = cx + dx;
+            sy = cy + dy;
+            sr = rr;
+        }
+        if (!fit_rays(re, dirs, cx, cy, &sx, &sy, &sr, p)) return false;
+        if (!(sr > 1.0)) return false;
+        cx = sx;
+        cy = sy;
+        r = sr;
+    }
+    out->cx = cx;
+    out->cy = cy;
+    out->r = r;
+    out->support = support(f, dirs, cx, cy, r, p, re);
+    return true;
+}
+
+double rim_outside(double cx, double cy, double r, int h, int w)
+{
+    const std::vector<double> d = ray_dirs(256);
+    int out = 0;
+    for (int k = 0; k < 256; k++) {
+        const double X = cx + r * d[2 * (size_t)k], Y = cy + r * d[2 * (size_t)k + 1];
+        if (X < 0 || X > w - 1 || Y < 0 || Y > h - 1) out++;
+    }
+    return out / 256.0;
+}
+
+void seterr(char *err, size_t len, const char *msg)
+{
+    if (err && len) snprintf(err, len, "%s", msg);
+}
+
+} // namespace
+
+std::vector<double> ray_dirs(int k)
+{
+    const int q = k / 8;
+    std::vector<double> bc((size_t)q + 1), bs((size_t)q + 1), d(2 * (size_t)k);
+    const double quarter = M_PI / 4;
+    for (int i = 0; i <= q; i++) {
+        const double t = quarter * i / q;
+        const double t2 = t * t;
+        double c = 1.0, s = t, tc = 1.0, ts = t;
+        for (int n = 1; n < 12; n++) {
+            tc = -tc * t2 / (double)((2 * n - 1) * (2 * n));
+            ts = -ts * t2 / (double)((2 * n) * (2 * n + 1));
+            c += tc;
+            s += ts;
+        }
+        bc[(size_t)i] = c;
+        bs[(size_t)i] = s;
+    }
+    for (int i = 0; i < k; i++) {
+        const int octant = i / q, j = i % q;
+        double c, s;
+        if (octant % 2 == 0) { c = bc[(size_t)j]; s = bs[(size_t)j]; }
+        else { s = bc[(size_t)(q - j)]; c = bs[(size_t)(q - j)]; }
+        double x, y;
+        switch (octant / 2) {
+        case 0: x = c; y = s; break;
+        case 1: x = -s; y = c; break;
+        case 2: x = -c; y = -s; break;
+        default: x = s; y = -c; break;
+        }
+        d[2 * (size_t)i] = x;
+        d[2 * (size_t)i + 1] = y;
+    }
+    return d;
+}
+
+static double expected_radius(const pp_camera *cam)
+{
+    const double f = cam->focal_mm / cam->pixel_mm;
+    const double R = cam->sphere_diameter_mm / 2.0, D = cam->distance_mm;
+    return f * R / std::sqrt(D * D - R * R);
+}
+
+int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *ocx, double *ocy,
+                double *orad, char *err, size_t errlen)
+{
+    double rmin, rmax;
+    if (p->cam.set) {
+        const double r = expected_radius(&p->cam);
+        rmin = r * (1.0 - p->r_tol);
+        rmax = r * (1.0 + p->r_tol);
+    } else {
+        const double m = (double)std::min(h, w);
+        rmin = p->r_min_frac * m;
+        rmax = p->r_max_frac * m;
+    }
+    int s = 1;
+    const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, &s);
+    const std::vector<double> dirs = ray_dirs(p->rays);
+    const Frame f = {bgr, stride, w, h};
+    std::vector<Found> found;
+    for (const Cand &c : cands) {
+        Found fo;
+        if (fine(f, dirs, c, s, p, &fo) && fo.support >= p->min_support && rmin * 0.9 <= fo.r && fo.r <= rmax * 1.1)
+            found.push_back(fo);
+    }
+    if (found.empty()) {
+        seterr(err, errlen, "no sphere found in frame");
+        return -1;
+    }
+    std::vector<size_t> order(found.size());
+    for (size_t i = 0; i < order.size(); i++) order[i] = i;
+    std::stable_sort(order.begin(), order.end(),
+                     [&](size_t a, size_t b) { return found[a].support > found[b].support; });
+    const Found &a = found[order[0]];
+    for (size_t i = 1; i < order.size(); i++) {
+        const Found &b = found[order[i]];
+        if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < (0.5 * a.r) * (0.5 * a.r)) continue;
+        if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r)) {
+            if (err && errlen)
+                snprintf(err, errlen, "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
+                         a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
+            return -1;
+        }
+    }
+    const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
+    if (cut > p->max_cut) {
+        if (err && errlen)
+            snprintf(err, errlen,
+                     "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
+                     100 * cut, 100 * p->max_cut);
+        return -1;
+    }
+    *ocx = a.cx;
+    *ocy = a.cy;
+    *orad = a.r;
+    return 0;
+}
+
+void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r, const pp_params *p,
+          uint8_t *out)
+{
+    const int S = p->size;
+    const double half = r * p->margin;
+    const long x0 = ifloor(cx - half + 0.5), y0 = ifloor(cy - half + 0.5);
+    const long side = std::max(1L, ifloor(2 * half + 0.5));
+    uint8_t fill[3];
+    for (int c = 0; c < 3; c++) fill[c] = (uint8_t)std::min(255.0, std::max(0.0, std::floor(p->fill[c] + 0.5)));
+    const cv::Mat frame(h, w, CV_8UC3, const_cast<uint8_t *>(bgr), stride);
+    cv::Mat roi;
+    const long ix0 = std::max(0L, x0), iy0 = std::max(0L, y0);
+    const long ix1 = std::min((long)w, x0 + side), iy1 = std::min((long)h, y0 + side);
+    if (x0 >= 0 && y0 >= 0 && ix1 == x0 + side && iy1 == y0 + side) {
+        roi = frame(cv::Rect((int)x0, (int)y0, (int)side, (int)side));
+    } else {
+        roi = cv::Mat((int)side, (int)side, CV_8UC3, cv::Scalar(fill[0], fill[1], fill[2]));
+        if (ix1 > ix0 && iy1 > iy0)
+            frame(cv::Rect((int)ix0, (int)iy0, (int)(ix1 - ix0), (int)(iy1 - iy0)))
+                .copyTo(roi(cv::Rect((int)(ix0 - x0), (int)(iy0 - y0), (int)(ix1 - ix0), (int)(iy1 - iy0))));
+    }
+    cv::Mat small(S, S, CV_8UC3, out);
+    if (!kern::resize_area_c3(roi.data, (int)side, (int)side, roi.step[0], small.data, S, S, small.step[0]))
+        cv::resize(roi, small, cv::Size(S, S), 0, 0, cv::INTER_AREA);
+    // everything farther than r (1 + mask_frac) from the centre: fill
+    const double scale = (double)side / S;
+    const double rm = r * (1.0 + p->mask_frac);
+    std::vector<double> d2x((size_t)S), d2y((size_t)S);
+    for (int i = 0; i < S; i++) {
+        const double u = ((double)i + 0.5) * scale - 0.5;
+        const double dx = ((double)x0 + u) - cx, dy = ((double)y0 + u) - cy;
+        d2x[(size_t)i] = dx * dx;
+        d2y[(size_t)i] = dy * dy;
+    }
+    for (int y = 0; y < S; y++)
+        for (int x = 0; x < S; x++)
+            if (d2y[(size_t)y] + d2x[(size_t)x] > rm * rm) {
+                uint8_t *q = out + 3 * ((size_t)y * S + x);
+                q[0] = fill[0];
+                q[1] = fill[1];
+                q[2] = fill[2];
+            }
+}
+
+void undistort_map(const pp_camera *cam, int w, int h, UndistortMap *m)
+{
+    const double f = cam->focal_mm / cam->pixel_mm;
+    const double cx = (cam->has_principal ? cam->principal[0] : cam->width / 2.0) - 0.5;
+    const double cy = (cam->has_principal ? cam->principal[1] : cam->height / 2.0) - 0.5;
+    const double k1 = cam->distortion[0], k2 = cam->distortion[1], p1 = cam->distortion[2],
+                 p2 = cam->distortion[3], k3 = cam->distortion[4];
+    const double big = 32.0 * (double)(1 << 24);
+    m->w = w;
+    m->h = h;
+    m->mx.resize((size_t)w * h);
+    m->my.resize((size_t)w * h);
+    for (int j = 0; j < h; j++) {
+        const double y = ((double)j - cy) / f;
+        for (int i = 0; i < w; i++) {
+            const double x = ((double)i - cx) / f;
+            const double x2 = x * x, y2 = y * y, xy = x * y;
+            const double r2 = x2 + y2;
+            const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+            const double xd = x * radial + (2.0 * p1) * xy + p2 * (r2 + 2.0 * x2);
+            const double yd = y * radial + p1 * (r2 + 2.0 * y2) + (2.0 * p2) * xy;
+            double mx = std::floor((f * xd + cx) * 32.0 + 0.5), my = std::floor((f * yd + cy) * 32.0 + 0.5);
+            mx = std::min(big, std::max(-big, mx));
+            my = std::min(big, std::max(-big, my));
+            m->mx[(size_t)j * w + i] = (int64_t)mx;
+            m->my[(size_t)j * w + i] = (int64_t)my;
+        }
+    }
+}
+
+void remap(const uint8_t *bgr, size_t stride, const UndistortMap &m, uint8_t *out)
+{
+    const int w = m.w, h = m.h;
+    for (int j = 0; j < h; j++) {
+        for (int i = 0; i < w; i++) {
+            const int64_t mx = m.mx[(size_t)j * w + i], my = m.my[(size_t)j * w + i];
+            // floor division by 32 (Python's >>), remainder in 0..31
+            const int64_t x0 = mx >= 0 ? mx / 32 : -((-mx + 31) / 32);
+            const int64_t y0 = my >= 0 ? my / 32 : -((-my + 31) / 32);
+            const int64_t ax = mx - x0 * 32, ay = my - y0 * 32;
+            const int64_t w00 = (32 - ax) * (32 - ay), w01 = ax * (32 - ay), w10 = (32 - ax) * ay, w11 = ax * ay;
+            const bool in0x = x0 >= 0 && x0 < w, in1x = x0 + 1 >= 0 && x0 + 1 < w;
+            const bool in0y = y0 >= 0 && y0 < h, in1y = y0 + 1 >= 0 && y0 + 1 < h;
+            uint8_t *o = out + 3 * ((size_t)j * w + i);
+            for (int c = 0; c < 3; c++) {
+                const int64_t p00 = in0x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)x0 + c] : 0;
+                const int64_t p01 = in1x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)(x0 + 1) + c] : 0;
+                const int64_t p10 = in0x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)x0 + c] : 0;
+                const int64_t p11 = in1x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)(x0 + 1) + c] : 0;
+                o[c] = (uint8_t)((p00 * w00 + p01 * w01 + p10 * w10 + p11 * w11 + 512) >> 10);
+            }
+        }
+    }
+}
+
+} // namespace crop2

@@ -1,0 +1,49 @@
+// crop2.h -- preprocessing "sphere-crop-v2" (docs/interfaces.md): the
+// sphere's circle from colour edges in a frame with a mounting post and
+// clutter, and the crop that keeps only the inside of that circle. The same
+// arithmetic, in the same order, as training/preprocess.py, so both give
+// the same circle and the same crop bytes (tests/host/test_parity.py).
+// C++ only, used by shim.cpp.
+#ifndef POSEINFER_CROP2_H
+#define POSEINFER_CROP2_H
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "shim.h"
+
+namespace crop2 {
+
+// The circle of the sphere in a BGR frame (OpenCV pixel coordinates: pixel
+// centres at integers). Returns 0, or -1 with err ("no sphere found in
+// frame", "two spheres in frame (...)", "sphere cut by the frame edge (...)").
+int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *cx, double *cy,
+                double *r, char *err, size_t errlen);
+
+// Crop (steps after the circle): the square of side 2 r margin around it,
+// outside the frame `fill`, reduced to size x size (INTER_AREA), every output
+// pixel farther than r (1 + mask_frac) from the centre set to `fill`. Writes
+// size * size * 3 BGR bytes to out.
+void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r, const pp_params *p,
+          uint8_t *out);
+
+// The undistortion map of a camera for a w x h frame: source positions in
+// 1/32 pixel (cv2.remap's fixed point), computed as preprocess.py does.
+struct UndistortMap {
+    int w = 0, h = 0;
+    std::vector<int64_t> mx, my;
+};
+void undistort_map(const pp_camera *cam, int w, int h, UndistortMap *m);
+
+// out (w x h BGR, packed) = the frame resampled through the map, bilinear
+// with 1/32 weights, 0 outside.
+void remap(const uint8_t *bgr, size_t stride, const UndistortMap &m, uint8_t *out);
+
+// The 8 ray directions' construction (Taylor series, no libm), exposed for
+// the unit tests: k unit vectors at angles 2 pi i / k (k a multiple of 8).
+std::vector<double> ray_dirs(int k);
+
+} // namespace crop2
+
+#endif
