@@ -293,23 +293,35 @@ static inline double focal_of(double r, double fixed_f)
     return fixed_f > 0 ? fixed_f : r * sqrt(RF_REF_D_OVER_R * RF_REF_D_OVER_R - 1.0);
 }
 
-/* Unit normal of the sphere point seen through (u, v) (training/refine.py normals). */
-static inline void normal_at(double u, double v, double cx, double cy, double r, double f, double n[3],
-                             double *t_out)
+/* What the normals of one evaluation share: the circle and the camera. */
+typedef struct rf_geom {
+    double cx, cy, inv_f, dist, dist2m1;    /* dist: camera to centre, unit sphere */
+} rf_geom;
+
+static inline void geom_init(rf_geom *g, double cx, double cy, double r, double f)
 {
-    double x = (u - cx) / f, y = -(v - cy) / f;
     double tan_a = r / f;
-    double dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
+    g->cx = cx;
+    g->cy = cy;
+    g->inv_f = 1.0 / f;
+    g->dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
+    g->dist2m1 = g->dist * g->dist - 1.0;
+}
+
+/* Unit normal of the sphere point seen through (u, v) (training/refine.py normals). */
+static inline void normal_at(double u, double v, const rf_geom *g, double n[3], double *t_out)
+{
+    double x = (u - g->cx) * g->inv_f, y = -(v - g->cy) * g->inv_f;
     double inv = 1.0 / sqrt(x * x + y * y + 1.0);
     double dx = x * inv, dy = y * inv, dz = -inv;
-    double od = dist * dz;
-    double disc = od * od - dist * dist + 1.0;
+    double od = g->dist * dz;
+    double disc = od * od - g->dist2m1;
     if (disc < 0) disc = 0;
     double t = -od - sqrt(disc);
     *t_out = t;
     n[0] = t * dx;
     n[1] = t * dy;
-    n[2] = dist + t * dz;
+    n[2] = g->dist + t * dz;
 }
 
 /* d n / d (cx, cy, r) at pixel (u, v), n given (training/refine.py
@@ -348,10 +360,15 @@ static inline void tex_sample(const float *tex, int w, int h, const double b[3],
     double lat = asin(by < -1 ? -1 : by > 1 ? 1 : by);
     double ut = (lon + M_PI) * (w / (2 * M_PI)) - 0.5;
     double vt = (M_PI / 2 - lat) * (h / M_PI) - 0.5;
-    double fi = floor(ut), fj = floor(vt);
-    double fx = ut - fi, fy = vt - fj;
-    long i0 = ((long)fi % w + w) % w, i1 = (i0 + 1) % w;
-    long j0 = (long)fj, j1 = j0 + 1;
+    /* floor without libm (x86-64's baseline has no rounding instruction), and
+     * the wrap without a division: ut lies in [-0.5, w - 0.5] */
+    long i0 = (long)ut, j0 = (long)vt;
+    if ((double)i0 > ut) i0--;
+    if ((double)j0 > vt) j0--;
+    double fx = ut - (double)i0, fy = vt - (double)j0;
+    if (i0 < 0) i0 += w;
+    if (i0 >= w) i0 -= w;
+    long i1 = i0 + 1 == w ? 0 : i0 + 1, j1 = j0 + 1;
     if (j1 > h - 1) j1 = h - 1;
     if (j1 < 0) j1 = 0;
     if (j0 > h - 1) j0 = h - 1;
@@ -445,13 +462,15 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
     const float *tex = t->px[lev];
     int tw = t->w[lev], th = t->h[lev];
     double f = focal_of(r, fixed_f);
+    rf_geom geo;
+    geom_init(&geo, cx, cy, r, f);
     double AtA[3][6][6], Atb[3][6], sum[3] = {0, 0, 0}, sum2[3] = {0, 0, 0};
     memset(AtA, 0, sizeof AtA);
     memset(Atb, 0, sizeof Atb);
     for (long k = 0; k < np; k++) {
         rf_pix *p = &w->pix[k];
         double u = uv[2 * k], v = uv[2 * k + 1], b[3], grad[3][3], tt;
-        normal_at(u, v, cx, cy, r, f, p->n, &tt);
+        normal_at(u, v, &geo, p->n, &tt);
         for (int i = 0; i < 3; i++) b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
         tex_sample(tex, tw, th, b, p->val, grad);
         if (w->gray) {
