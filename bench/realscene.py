@@ -13,7 +13,8 @@ paper's metrics over all axes), the geodesic error (mean, median, p95,
 max), the share of frames answered, and the sphere localisation (centre
 error in px, radius error in %) from the result's "circle" [cx, cy, r]
 (continuous pixels of the undistorted image) or, for runtimes without it,
-from --timings' cx, cy, r (OpenCV pixel centres, so + 0.5). It writes
+from --timings' cx, cy, r (OpenCV pixel centres, so + 0.5). Frames of the
+`refuse` family must get an error or a flag; they are counted apart. It writes
 report.md (the table, a breakdown by backdrop and mount, the worst frames),
 results.jsonl and realscene.png (error distributions) into --out and prints
 the table. Frames are kept; a family folder made with the same parameters
@@ -90,6 +91,8 @@ def geodesic_deg(pred, true):
 def family_metrics(rows):
     """rows: dicts with pose, pred (or None), circle truth, found circle (or None)."""
     n = len(rows)
+    if rows and all(r.get("expect") == "refuse" for r in rows):
+        return refusal_metrics(rows)
     ok = [r for r in rows if r["pred"] is not None]
     m = {"n": n, "answered": len(ok), "answered_pct": 100.0 * len(ok) / max(n, 1),
          "flagged": sum(1 for r in ok if r.get("confident") is False)}
@@ -114,7 +117,7 @@ def family_metrics(rows):
         for r, g, ee in zip(ok, geo, e):
             r["geo"] = float(g)
             r["err"] = [float(v) for v in ee]
-    loc = [r for r in ok if r["found"] is not None]
+    loc = [r for r in ok if r["found"] is not None and r["circle"] is not None]
     if loc:
         c = np.array([r["found"] for r in loc])
         t = np.array([r["circle"] for r in loc])
@@ -123,6 +126,30 @@ def family_metrics(rows):
         m.update(centre_median=float(np.median(dc)), centre_mean=float(dc.mean()), centre_max=float(dc.max()),
                  radius_mean=float(dr.mean()), radius_max=float(dr.max()), loc_n=len(loc))
     return m
+
+
+def refusal_metrics(rows):
+    """Frames that must be refused: how many got an error, a flag, or a confident pose (the failure)."""
+    n = len(rows)
+    errors = sum(1 for r in rows if r["pred"] is None)
+    flagged = sum(1 for r in rows if r["pred"] is not None and r.get("confident") is False)
+    return {"n": n, "refuse": True, "errors": errors, "flagged": flagged, "confident": n - errors - flagged,
+            "refused_pct": 100.0 * (errors + flagged) / max(n, 1), "answered_pct": 100.0 * (n - errors) / max(n, 1)}
+
+
+def refusal_table(rows_by_family):
+    lines = ["| family | kind | n | error | flagged | confident pose (wrong) | refused |",
+             "| --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    for fam, rows in rows_by_family.items():
+        if not rows or not all(r.get("expect") == "refuse" for r in rows):
+            continue
+        kinds = sorted({r["tags"].get("refuse") or "?" for r in rows})
+        for kind in kinds + ["all"]:
+            sub = [r for r in rows if kind == "all" or r["tags"].get("refuse") == kind]
+            m = refusal_metrics(sub)
+            lines.append(f"| {fam} | {kind} | {m['n']} | {m['errors']} | {m['flagged']} | {m['confident']} "
+                         f"| {m['refused_pct']:.0f} % |")
+    return "\n".join(lines) if len(lines) > 2 else ""
 
 
 # ---- running the runtime ------------------------------------------------------------------------------
@@ -217,6 +244,8 @@ def table(metrics):
              "| frames max > 3° | centre err median / max (px) | radius err mean / max (%) |",
              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for fam, m in metrics.items():
+        if m.get("refuse"):
+            continue
         loc = (f"{fmt(m, 'centre_median')} / {fmt(m, 'centre_max')}" if "centre_median" in m else "–")
         rad = (f"{fmt(m, 'radius_mean')} / {fmt(m, 'radius_max')}" if "radius_mean" in m else "–")
         lines.append(f"| {fam} | {m['n']} | {m['answered_pct']:.0f} % | {m['flagged']} | {fmt(m, 'mae', 3)} "
@@ -232,6 +261,8 @@ def extra_table(metrics):
         return ""
     lines = ["| family | network alone: MAE / max | frames not flagged: MAE / max |", "| --- | ---: | ---: |"]
     for fam, m in metrics.items():
+        if m.get("refuse"):
+            continue
         lines.append(f"| {fam} | {fmt(m, 'net_mae', 3)} / {fmt(m, 'net_max')} "
                      f"| {fmt(m, 'unflagged_mae', 3)} / {fmt(m, 'unflagged_max')} |")
     return "\n".join(lines) + "\n"
@@ -245,13 +276,15 @@ def scene_tags(scene):
     if bg == "gradient" and scene["background"]["a"][0] == scene["background"]["a"][1] == \
             scene["background"]["a"][2] and (scene["background"]["a"][0] < 0.1 or scene["background"]["a"][0] > 0.9):
         bg = "near-black" if scene["background"]["a"][0] < 0.1 else "near-white"
-    return {"mount": mtag, "backdrop": bg}
+    return {"mount": mtag, "backdrop": bg, "refuse": scene.get("refuse")}
 
 
 def breakdown(rows_by_family):
     lines = ["| family | by | value | n | answered | flagged | MAE | max | centre err median (px) |",
              "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for fam, rows in rows_by_family.items():
+        if rows and rows[0].get("expect") == "refuse":
+            continue
         for by in ("backdrop", "mount"):
             groups = {}
             for r in rows:
@@ -269,6 +302,11 @@ def breakdown(rows_by_family):
 def worst(rows_by_family, k=3):
     lines = []
     for fam, rows in rows_by_family.items():
+        if rows and rows[0].get("expect") == "refuse":
+            rows = [r for r in rows if r["pred"] is not None and r.get("confident") is not False]
+            lines += [f"- {fam}/{r['file']}: a confident pose on a frame to refuse ({r['tags']['refuse']})"
+                      for r in rows[:k]]
+            continue
         bad = sorted(rows, key=lambda r: -1.0 if r["pred"] is None else -r["geo"])[:k]
         for r in bad:
             what = r.get("error") or (f"geodesic {r['geo']:.2f}°, pred {r['pred']}"
@@ -283,6 +321,8 @@ def plot(rows_by_family, path):
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for fam, rows in rows_by_family.items():
+        if rows and rows[0].get("expect") == "refuse":
+            continue
         geo = np.sort([r["geo"] for r in rows if r["pred"] is not None])
         if len(geo):
             axes[0].plot(np.maximum(geo, 1e-3), np.arange(1, len(geo) + 1) / len(rows), label=fam)
@@ -370,12 +410,17 @@ def main(args):
                          "pred": [r["x"], r["y"], r["z"]] if answered else None,
                          "error": None if answered else r.get("error", "no pose"),
                          "found": found_circle(r) if answered else None, "tags": scene_tags(t["scene"]),
-                         "confident": r.get("confident"), "net": r.get("net") if answered else None})
+                         "confident": r.get("confident"), "net": r.get("net") if answered else None,
+                         "expect": t.get("expect")})
         rows_by_family[fam] = rows
         metrics[fam] = family_metrics(rows)
         m = metrics[fam]
-        print(f"{fam}: MAE {fmt(m, 'mae', 3)}°, max {fmt(m, 'max')}°, answered {m['answered_pct']:.0f} %, "
-              f"flagged {m['flagged']}, centre {fmt(m, 'centre_median')} px", flush=True)
+        if m.get("refuse"):
+            print(f"{fam}: refused {m['refused_pct']:.0f} % ({m['errors']} errors, {m['flagged']} flagged, "
+                  f"{m['confident']} confident poses)", flush=True)
+        else:
+            print(f"{fam}: MAE {fmt(m, 'mae', 3)}°, max {fmt(m, 'max')}°, answered {m['answered_pct']:.0f} %, "
+                  f"flagged {m['flagged']}, centre {fmt(m, 'centre_median')} px", flush=True)
     if sha256(args.model) != model_sha:
         notes.append("the model file changed during the run: the table mixes two models")
     elapsed = time.time() - t0
@@ -400,7 +445,9 @@ def main(args):
     ] + [f"- note: {n}" for n in notes] + [
         "", "Degrees; MAE, RMSE, max over all three axes (docs/conventions.md), over the frames answered; "
         "flagged: answered with \"confident\": false.", "",
-        table(metrics), "", extra_table(metrics), "## Breakdown", "", breakdown(rows_by_family), "", "## Worst frames", "",
+        table(metrics), "", extra_table(metrics), "## Frames to refuse", "",
+        "An error or a flag counts as refused; a confident pose is a failure.", "",
+        refusal_table(rows_by_family), "", "## Breakdown", "", breakdown(rows_by_family), "", "## Worst frames", "",
         worst(rows_by_family), "", "![errors](realscene.png)", ""]
     with open(os.path.join(args.out, "report.md"), "w", encoding="utf-8") as f:
         f.write("\n".join(report))
@@ -408,6 +455,7 @@ def main(args):
         json.dump(metrics, f, indent=1)
     print()
     print(table(metrics))
+    print(refusal_table(rows_by_family))
     print(f"\nreport: {os.path.join(args.out, 'report.md')}")
 
 

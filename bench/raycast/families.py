@@ -15,6 +15,12 @@
   top (hiding up to 15 % of the outline), photo-like smooth noise, stripes,
   checkerboards, near-black and near-white backdrops, defocus (disc) blur,
   vignetting, JPEG. The lens distortion comes from the camera file.
+- `edge`: `rig` with the sphere against a frame edge, 2-12 % of its outline
+  outside the frame: still to be measured.
+- `refuse`: `rig` frames a runtime must refuse (an error or a flag, never a
+  confident pose): no sphere on the post (`none`), two spheres (`two`), or
+  the sphere cut by a frame edge, 20-45 % of its outline outside (`cut`).
+  Their truth line says "expect": "refuse"; `none` has no circle.
 Each frame's scene depends only on (family, seed, index), so frames can be
 drawn in any order or in parallel and drawn again identically.
 """
@@ -24,7 +30,7 @@ import numpy as np
 
 from . import backgrounds, render
 
-FAMILIES = ("clean", "shifts", "rig", "rig-unseen")
+FAMILIES = ("clean", "shifts", "rig", "rig-unseen", "edge", "refuse")
 _FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES)}
 MAX_HIDDEN_RIM = 0.15
 POSE_RANGE = 30.0
@@ -144,7 +150,53 @@ def _rig_unseen(rng, cam):
     return s
 
 
-_DRAW = {"clean": _clean, "shifts": _shifts, "rig": _rig, "rig-unseen": _rig_unseen}
+def _against_edge(rng, s, cam, lo, hi):
+    """Move the sphere (principal-point shift) so that a share in [lo, hi] of its outline lies beyond
+    one frame edge: a centre at distance r cos(pi f) from the edge leaves the share f outside."""
+    f = rng.uniform(lo, hi)
+    r = cam.at(distance_mm=s["distance_mm"]).radius_px()
+    dist = r * math.cos(math.pi * f)
+    u0, v0 = cam.principal
+    edge = str(rng.choice(["left", "right", "top", "bottom"]))
+    if edge in ("left", "right"):
+        cu = dist if edge == "left" else cam.width - dist
+        room = max(0.0, cam.height / 2 - r - 2)
+        cv = cam.height / 2 + rng.uniform(-room, room)
+    else:
+        cv = dist if edge == "top" else cam.height - dist
+        room = max(0.0, cam.width / 2 - r - 2)
+        cu = cam.width / 2 + rng.uniform(-room, room)
+    s["shift_px"] = [float(cu - u0), float(cv - v0)]
+    s["outside"] = {"edge": edge, "share": float(f)}
+    return s
+
+
+def _edge(rng, cam):
+    return _against_edge(rng, _rig(rng, cam), cam, 0.02, 0.12)
+
+
+def _refuse(rng, cam):
+    s = _rig(rng, cam)
+    kind = str(rng.choice(["none", "two", "cut"]))
+    s["expect"] = "refuse"
+    s["refuse"] = kind
+    if kind == "none":
+        s["sphere"] = False
+    elif kind == "two":
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        s["mount"] = None
+        s["shift_px"] = [float(-side * rng.uniform(130, 160)), float(rng.uniform(-40, 40))]
+        s["others"] = [{"centre_mm": [float(side * rng.uniform(2.15, 2.4) * cam.radius_mm),
+                                      float(rng.uniform(-0.3, 0.3) * cam.radius_mm),
+                                      float(rng.uniform(-0.5, 0.5) * cam.radius_mm)],
+                        "pose": _pose(rng)}]
+    else:
+        _against_edge(rng, s, cam, 0.2, 0.45)
+    return s
+
+
+_DRAW = {"clean": _clean, "shifts": _shifts, "rig": _rig, "rig-unseen": _rig_unseen, "edge": _edge,
+         "refuse": _refuse}
 
 
 def draw_scene(family, seed, index, cam):

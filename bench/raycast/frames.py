@@ -2,6 +2,7 @@
 
 truth.jsonl has one JSON line per frame, in index order:
 {"file": "x_y_z.png", "pose": [x, y, z], "circle": [cx, cy, r], "scene": {...}}
+(frames a runtime must refuse add "expect": "refuse"; without a sphere the circle is null)
 with the circle in continuous pixels of the undistorted image and the scene
 the dict that `render.render` drew the frame from (plus "hidden_rim", the
 share of the outline a mount hides). params.json records what made the
@@ -42,8 +43,10 @@ def make_frame(family, seed, index, cam, tex, supersample=4):
         raise RuntimeError("PNG encoding failed")
     name = frame_name(scene["pose"])
     scene["hidden_rim"] = render.hidden_rim_fraction(scene, cam) if scene.get("mount") else 0.0
-    truth = {"file": name, "pose": scene["pose"], "circle": [round(c, 4) for c in render.circle(scene, cam)],
-             "scene": scene}
+    circle = [round(c, 4) for c in render.circle(scene, cam)] if scene.get("sphere", True) else None
+    truth = {"file": name, "pose": scene["pose"], "circle": circle, "scene": scene}
+    if scene.get("expect"):
+        truth["expect"] = scene["expect"]
     return name, png.tobytes(), truth
 
 

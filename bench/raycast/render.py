@@ -23,7 +23,8 @@ import numpy as np
 
 from . import backgrounds, camera, mounts, shapes
 
-SPHERE, BACKDROP = 0, -1      # hit ids; mount parts are 1, 2, ...
+SPHERE, BACKDROP = 0, -1      # hit ids; mount parts are 1, 2, ...; other spheres OTHERS + j
+OTHERS = 1000
 CHUNK_RAYS = 1 << 15          # rays traced at once: about 1 MB per float64 array
 
 
@@ -85,10 +86,18 @@ def trace(scene, cam, u, v, with_mount=True):
     cam = frame_camera(scene, cam)
     o = np.array([0.0, 0.0, cam.distance_mm])
     d = camera.pixel_rays(cam, u, v, scene.get("shift_px", (0.0, 0.0))).reshape(-1, 3)
-    t_best, n_best = shapes.sphere_hit(o, d, cam.radius_mm)
+    if scene.get("sphere", True):
+        t_best, n_best = shapes.sphere_hit(o, d, cam.radius_mm)
+    else:                                       # a frame without the sphere (the evaluation's refusals)
+        t_best, n_best = np.full(len(d), shapes.INF), np.zeros((len(d), 3))
     hit = np.where(np.isfinite(t_best), SPHERE, BACKDROP)
     parts = mounts.solids(scene.get("mount"), cam.radius_mm) if with_mount else []
-    for k, (fn, _) in enumerate(parts, start=1):
+    if with_mount:
+        for j, other in enumerate(scene.get("others", [])):   # more spheres, same size, own poses
+            c = np.asarray(other["centre_mm"], np.float64)
+            parts.append((lambda o_, d_, c=c: shapes.sphere_hit(o_ - c, d_, cam.radius_mm), OTHERS + j))
+    for k, (fn, mat) in enumerate(parts, start=1):
+        k = mat if isinstance(mat, int) else k
         t, n = fn(o, d)
         nearer = t < t_best
         t_best = np.where(nearer, t, t_best)
@@ -132,13 +141,17 @@ def _shade(scene, cam, tex, hit, p, n, d):
     solids = mounts.solids(scene.get("mount"), cam.radius_mm)
     materials = [{"colour": None, "specular": scene["sheen"]["specular"], "power": scene["sheen"]["power"]}]
     materials += [m for _, m in solids]
-    for k, mat in enumerate(materials):
+    materials = list(enumerate(materials))
+    materials += [(OTHERS + j, dict(materials[0][1], pose=other["pose"]))
+                  for j, other in enumerate(scene.get("others", []))]
+    for k, mat in materials:
         sel = np.nonzero(hit == k)[0]
         if not len(sel):
             continue
         nk = n[sel]
-        if k == SPHERE:
-            albedo = texture_lookup(tex, shapes.rows_mat(nk, euler_matrix(*scene["pose"])))
+        if k == SPHERE or k >= OTHERS:
+            pose = scene["pose"] if k == SPHERE else mat["pose"]
+            albedo = texture_lookup(tex, shapes.rows_mat(nk, euler_matrix(*pose)))
         else:
             albedo = np.broadcast_to(np.asarray(mat["colour"], np.float32), (len(nk), 3))
         nk = nk.astype(np.float32)
@@ -171,7 +184,7 @@ def radiance(scene, cam, tex, supersample=4):
     # Pixels to supersample: on the sphere, or beside a change of what is seen.
     ids = hit.astype(np.int16)
     edge = (cv2.dilate(ids, np.ones((3, 3), np.uint8)) != cv2.erode(ids, np.ones((3, 3), np.uint8)))
-    fine = (hit == SPHERE) | edge
+    fine = (hit == SPHERE) | (hit >= OTHERS) | edge
     img = bg.copy()
     coarse = ~fine & (hit != BACKDROP)
     if coarse.any():

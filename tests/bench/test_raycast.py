@@ -202,3 +202,27 @@ def test_lens_frame_undistorts_to_the_truth_circle():
     assert abs(((ys + 0.5) * und).sum() / und.sum() - cy) < 0.1
     # The distorted frame itself is not that circle (the lens moved it).
     assert abs(((xs + 0.5) * img).sum() / img.sum() - cx) > 0.5
+
+
+def test_edge_and_refuse_families(small_texture):
+    cam = camera.Camera()
+    for i in range(6):   # the share of the outline beyond the frame is the one drawn
+        s = families.draw_scene("edge", 0, i, cam)
+        cx, cy, r = render.circle(s, cam)
+        a = np.linspace(0, 2 * np.pi, 3600, endpoint=False)
+        u, v = cx + r * np.cos(a), cy + r * np.sin(a)
+        outside = np.mean((u < 0) | (u > cam.width) | (v < 0) | (v > cam.height))
+        assert abs(outside - s["outside"]["share"]) < 0.002 and 0.02 <= outside <= 0.12
+    tex = render.load_texture(small_texture)
+    kinds = {}
+    for i in range(12):
+        s = families.draw_scene("refuse", 0, i, cam)
+        kinds.setdefault(s["refuse"], i)
+    assert set(kinds) == {"none", "two", "cut"}
+    _, _, truth = frames.make_frame("refuse", 0, kinds["none"], cam, tex, supersample=1)
+    assert truth["expect"] == "refuse" and truth["circle"] is None
+    s = families.draw_scene("refuse", 0, kinds["two"], cam)
+    c = np.asarray(s["others"][0]["centre_mm"])
+    far = camera.project(cam.at(distance_mm=s["distance_mm"]), [c], shift=s["shift_px"])[0]
+    hit, _, _, _ = render.trace(s, cam, [far[0], *render.circle(s, cam)[:1]], [far[1], render.circle(s, cam)[1]])
+    assert list(hit) == [render.OTHERS, render.SPHERE]     # both spheres in the frame, each where it projects
