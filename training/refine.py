@@ -28,7 +28,7 @@ META_CONFIDENCE = "spherepose.confidence"
 # The algorithm's parameters: one source, copied into host/src/refine.h (a unit test compares).
 LEVELS = 3            # frame and texture pyramid levels, coarse to fine (2x2 box reductions)
 ITERS = (4, 2, 1)     # Levenberg-Marquardt steps per level, coarse to fine
-STRIDES = (2, 4, 5)   # sample every STRIDE-th row and column of each level, coarse to fine
+STRIDES = (2, 3, 5)   # sample every STRIDE-th row and column of each level, coarse to fine
 RHO_MAX = 0.92        # pixels used: centre within RHO_MAX * r of the circle's centre
 CROP_PAD = 4.0        # the frame's crop: the circle's square grown by CROP_PAD pixels
 TEXTURE_WIDTH = 1024  # texture width at the finest level (reduced from the model's by 2x2 boxes)

@@ -17,7 +17,7 @@
 #define RF_ITERS_INIT {4, 2, 1}       /* Levenberg-Marquardt steps per level, coarse to fine */
 #endif
 #ifndef RF_STRIDES_INIT
-#define RF_STRIDES_INIT {2, 4, 5}     /* pixel sampling stride per level, coarse to fine */
+#define RF_STRIDES_INIT {2, 3, 5}     /* pixel sampling stride per level, coarse to fine */
 #endif
 #define RF_RHO_MAX 0.92
 #define RF_CROP_PAD 4.0               /* the crop: the circle's square grown by this (px) */
