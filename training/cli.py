@@ -39,10 +39,10 @@ def get_args_parser():
     sub.required = True
 
     t = sub.add_parser("train", help="train a model", formatter_class=_Formatter,
-                       description="Train, evaluate and export one model. Under torchrun (torchrun --nproc-per-node N "
-                                   "--no-python posetrain train ...) the processes share each step's --batch-size "
-                                   "(DistributedDataParallel; gloo on CPU, NCCL on GPUs) and rank 0 writes every "
-                                   "file: docs/cluster.md.")
+                       description="Train, evaluate and export one model.\n\nUnder torchrun (torchrun --nproc-per-node N "
+                                   "--no-python posetrain train ...)\nthe processes share each step's --batch-size "
+                                   "(DistributedDataParallel;\ngloo on CPU, NCCL on GPUs) and rank 0 writes every "
+                                   "file (docs/cluster.md).")
     add_train_arguments(t)
     add_common_arguments(t)
 
