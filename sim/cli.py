@@ -211,6 +211,10 @@ def cmd_dataset(args, argv):
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
     if args.ray_address and args.engine != "ray":
         raise UsageError("--ray-address needs --engine ray")
+    host, _, port = (args.ray_address or "h:0").rpartition(":")
+    if not host or not port.isdigit():
+        raise UsageError(f"--ray-address {args.ray_address}: expected HOST:PORT, the head's address "
+                         f"(ray start --head prints it)")
     record = build(cfg, args.out, workers=args.workers, progress=not args.quiet,
                    command=shlex.join(["sim"] + list(argv)), log=log, engine=args.engine,
                    ray_address=args.ray_address)

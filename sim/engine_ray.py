@@ -45,8 +45,14 @@ def connect(address=None, num_cpus=None, log_to_driver=False):
     address = address or os.environ.get("RAY_ADDRESS") or None
     if address:
         _token_auth_if_token()      # before Ray is imported: it reads the mode once
-    import ray
+    try:
+        import ray
+    except ImportError as e:
+        raise EngineError(f"the Ray engine needs the ray package ({e}); `make deps` installs the version "
+                          f"requirements.txt pins") from None
     kw = dict(logging_level=logging.WARNING, log_to_driver=log_to_driver, include_dashboard=False)
+    if address:
+        _check_reachable(address)
     try:
         if address:
             ray.init(address=address, **kw)
@@ -60,6 +66,21 @@ def connect(address=None, num_cpus=None, log_to_driver=False):
         yield ray
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address, timeout_s=10):
+    """Fail at once, naming the address, when nothing listens there (Ray itself retries for minutes)."""
+    import socket
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit():
+        raise EngineError(f"--ray-address {address}: expected HOST:PORT, the head's address (ray start --head "
+                          f"prints it)")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as e:
+        raise EngineError(f"no Ray cluster at {address} ({e.strerror or e}); start one with `ray start --head` "
+                          f"(docs/cluster.md) or leave --ray-address and RAY_ADDRESS unset for a local "
+                          f"instance") from None
 
 
 def _token_auth_if_token():
