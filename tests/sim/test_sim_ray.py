@@ -134,3 +134,21 @@ def test_a_killed_task_is_run_again(cluster, local_set, texture_png, small_camer
     assert driver.returncode == 0, err
     assert tree_digest(out) == tree_digest(local_set)
     assert split_files(out) == split_files(local_set)
+
+
+def test_bad_or_unreachable_address_is_a_clear_error(texture_png, small_camera_json, tmp_path):
+    env = dict(os.environ, RAY_ADDRESS="")
+    base = [sys.executable, "-m", "sim.cli", "dataset", "--texture", texture_png, "--camera", small_camera_json,
+            "--engine", "ray", *SMALL]
+    r = subprocess.run(base + ["--out", str(tmp_path / "a"), "--ray-address", "headnode"], env=env,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "--ray-address headnode: expected HOST:PORT" in r.stderr, r.stderr
+    assert not (tmp_path / "a").exists()
+    with socket.socket() as s:      # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.time()
+    r = subprocess.run(base + ["--out", str(tmp_path / "b"), "--ray-address", f"127.0.0.1:{port}"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and f"no Ray cluster at 127.0.0.1:{port}" in r.stderr, r.stderr
+    assert time.time() - t0 < 60
