@@ -15,11 +15,12 @@ from pihelpers import ROOT, sphere_frame
 cv2 = pytest.importorskip("cv2")
 
 KEYS = {"file", "x", "y", "z", "ms", "circle"}  # circle: docs/poseinfer.md
-CONFIDENCE = {"confident", "residual", "note"}  # docs/refine.md; note only when not confident
+# The sphere's circle and the confidence (docs/refine.md; note only when not confident).
+EXTRA = {"circle", "confident", "residual", "note"}
 
 
 def assert_pose(line, path):
-    assert KEYS <= set(line) <= KEYS | CONFIDENCE, line
+    assert KEYS <= set(line) <= KEYS | EXTRA, line
     assert line["file"] == str(path)
     for k in ("x", "y", "z", "ms"):
         assert isinstance(line[k], (int, float)) and math.isfinite(line[k])
