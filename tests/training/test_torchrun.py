@@ -1,5 +1,6 @@
 """`torchrun --nproc-per-node 2 --no-python posetrain train` (gloo on CPU) trains one epoch on a tiny
-set; rank 0 leaves a checkpoint that loads, a model that exports, and the run's files once."""
+set; rank 0 leaves a checkpoint that loads, a model that exports, and the run's files once; the
+checkpoint resumes in one process."""
 import csv
 import json
 import os
@@ -10,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from training.cli import main
 from training.export import read_metadata, run_onnx
 from training.train import load_checkpoint
 
@@ -59,3 +61,7 @@ def test_two_processes_train_one_epoch_and_rank_0_writes(tiny_set, tmp_path):
     o = run_onnx(out / "model.onnx", np.zeros((2, 3, 32, 32), np.float32))
     assert o["euler_deg"].shape == (2, 3)
     assert not list(out.glob("*.tmp"))
+    # The two processes' checkpoint resumes in one process (any process count that divides the batch).
+    assert main(["train", "--resume", str(out / "checkpoint.pth"), "--data", str(tiny_set), "--out", str(out),
+                 "--epochs", "2", "--no-progress", "--no-export", "--threads", "1", "--eval-splits", "val"]) == 0
+    assert [r["epoch"] for r in csv.DictReader(open(out / "log.csv"))] == ["1", "2"]
