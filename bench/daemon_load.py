@@ -125,7 +125,7 @@ def one_round(cmd, args, frame, big, sock):
     d = Daemon(cmd, args.model, sock)
     try:
         payload = request(frame, args.frame_over_socket)
-        slow_payload = request(big, args.frame_over_socket)
+        slow_payload = request(big, args.frame_over_socket) if args.slow else b""
         rss0 = status_kib(d.proc.pid, "VmRSS")
         barrier = threading.Barrier(args.clients + 1)
         lat, slow_lat, errors = [], [], []
