@@ -371,7 +371,17 @@ def main(args):
         sys.exit(f"realscene: {e}")
     opts = runtime_options(args.poseinfer)
     notes = []
-    camera_file = args.camera if opts["camera_file"] else None
+    camera_file = None
+    if opts["camera_file"]:
+        # The runtime learns the expected sphere size from a camera file: the reference camera's
+        # when none is given (the frames' distance varies by 10 %, within the 15 % allowed).
+        camera_file = args.camera
+        if camera_file is None:
+            camera_file = os.path.join(args.out, "camera.json")
+            os.makedirs(args.out, exist_ok=True)
+            with open(camera_file, "w", encoding="utf-8") as f:
+                json.dump(cam.to_dict(), f)
+                f.write("\n")
     if args.camera and not opts["camera_file"]:
         notes.append(f"this poseinfer has no --camera-file: it did not read {args.camera} (no undistortion)")
     try:
