@@ -2,6 +2,7 @@
 `ray start --head` as docs/cluster.md says) renders the same bytes as the local engine, and a
 task whose worker is killed is run again."""
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -56,6 +57,7 @@ def cluster():
         except subprocess.TimeoutExpired:
             os.killpg(head.pid, signal.SIGKILL)
         log.close()
+        shutil.rmtree(temp, ignore_errors=True)
 
 
 @pytest.fixture(scope="module")
