@@ -29,8 +29,7 @@ namespace {
 // Working memory, kept between frames (per thread): fresh allocations of
 // these sizes cost more in page faults than the work itself.
 struct Scratch {
-    std::vector<int32_t> red, row, GX, GY, V, D, gx, gy, acc, box, hsum, vmax, bmax;
-    std::vector<int64_t> M;
+    std::vector<int32_t> red, row, M, GX, GY, V, D, acc, box, hsum, vmax, bmax;
 };
 thread_local Scratch scratch;
 
@@ -50,6 +49,15 @@ struct Found {
 };
 
 // Python's math.floor(x) for the values here (finite, well inside long).
+// floor of a double known to lie well inside int32, as an int32: truncation,
+// then one down where that went up (negative non-integers); exact, and
+// vectorisable (no libm call, no branch)
+inline int32_t floor32(double x)
+{
+    const int32_t t = (int32_t)x;
+    return t - (int32_t)((double)t > x);
+}
+
 // (no libm call: truncation, then one down for negative non-integers; exact)
 inline long ifloor(double x)
 {
@@ -92,6 +100,14 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
     const size_t nbytes = (size_t)*ws * s * 3;
     std::vector<int32_t> &row = scratch.row;
     row.resize(nbytes);
+    // (sum + half) / n for every possible block sum, rounded half up
+    // (small blocks; larger ones divide)
+    thread_local std::vector<int32_t> quot;
+    const bool table = n <= 64;
+    if (table) {
+        quot.resize((size_t)255 * n + 1);
+        for (int32_t v = 0; v <= 255 * n; v++) quot[(size_t)v] = (v + half) / n;
+    }
     for (int Y = 0; Y < *hs; Y++) {
         sum_rows(bgr + (size_t)Y * s * stride, stride, s, nbytes, row.data());
         int32_t *o = &red[(size_t)Y * *ws * 3];
@@ -103,9 +119,15 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
                 g += q[1];
                 r += q[2];
             }
-            o[3 * X] = (b + half) / n;  // non-negative: / floors
-            o[3 * X + 1] = (g + half) / n;
-            o[3 * X + 2] = (r + half) / n;
+            if (table) {
+                o[3 * X] = quot[(size_t)b];
+                o[3 * X + 1] = quot[(size_t)g];
+                o[3 * X + 2] = quot[(size_t)r];
+            } else {
+                o[3 * X] = (b + half) / n;  // non-negative: / floors
+                o[3 * X + 1] = (g + half) / n;
+                o[3 * X + 2] = (r + half) / n;
+            }
         }
     }
 }
@@ -119,45 +141,50 @@ struct Edges {
 // neighbour across the edge (direction in four classes, integer tests).
 // Sobel as its separable parts: V = r[y-1] + 2 r[y] + r[y+1] and D = r[y+1] -
 // r[y-1] per byte, then gx = V[x+1] - V[x-1], gy = D[x-1] + 2 D[x] + D[x+1].
+// One row of the gradient image: per pixel the channel of the largest
+// magnitude^2 (first on ties) and its gx, gy. Planar loops so that they
+// vectorise; magnitudes^2 fit int32 (|g| <= 4 * 255 * 2).
+KERN2_CLONES void gradient_row(const int32_t *r0, const int32_t *r1, const int32_t *r2, int gw, int32_t *V, int32_t *D,
+                               int32_t *m, int32_t *ox, int32_t *oy)
+{
+    const int nb = (gw + 2) * 3;
+    for (int k = 0; k < nb; k++) {
+        V[k] = r0[k] + 2 * r1[k] + r2[k];
+        D[k] = r2[k] - r0[k];
+    }
+    for (int j = 0; j < gw; j++) {
+        int32_t bm = -1, bx = 0, by = 0;
+        for (int c = 0; c < 3; c++) {
+            const int k = 3 * j + c;
+            const int32_t x = V[k + 6] - V[k], y = D[k] + 2 * D[k + 3] + D[k + 6];
+            const int32_t m2 = x * x + y * y;
+            const bool gt = m2 > bm;
+            bm = gt ? m2 : bm;
+            bx = gt ? x : bx;
+            by = gt ? y : by;
+        }
+        m[j] = bm;
+        ox[j] = bx;
+        oy[j] = by;
+    }
+}
+
 void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edges &e)
 {
     const int gh = hs - 2, gw = ws - 2;
     const size_t P = (size_t)gw + 2;
-    std::vector<int64_t> &M = scratch.M;  // padded magnitude^2
-    fill(M, (size_t)(gh + 2) * P, (int64_t)0);
-    std::vector<int32_t> &GX = scratch.GX, &GY = scratch.GY, &V = scratch.V, &D = scratch.D, &gx = scratch.gx,
-                         &gy = scratch.gy;
+    std::vector<int32_t> &M = scratch.M;  // padded magnitude^2
+    fill(M, (size_t)(gh + 2) * P, 0);
+    std::vector<int32_t> &GX = scratch.GX, &GY = scratch.GY, &V = scratch.V, &D = scratch.D;
     const size_t nb = (size_t)ws * 3;
     GX.resize((size_t)gh * gw);
     GY.resize((size_t)gh * gw);
     V.resize(nb);
     D.resize(nb);
-    gx.resize((size_t)gw * 3);
-    gy.resize((size_t)gw * 3);
     for (int i = 0; i < gh; i++) {
-        const int32_t *r0 = &red[(size_t)i * nb], *r1 = r0 + nb, *r2 = r1 + nb;
-        for (size_t k = 0; k < nb; k++) {
-            V[k] = r0[k] + 2 * r1[k] + r2[k];
-            D[k] = r2[k] - r0[k];
-        }
-        for (size_t k = 0; k < (size_t)gw * 3; k++) {
-            gx[k] = V[k + 6] - V[k];
-            gy[k] = D[k] + 2 * D[k + 3] + D[k + 6];
-        }
-        int64_t *m = &M[(size_t)(i + 1) * P + 1];
-        int32_t *ox = &GX[(size_t)i * gw], *oy = &GY[(size_t)i * gw];
-        for (int j = 0; j < gw; j++) {
-            int64_t bm = -1;
-            int32_t bx = 0, by = 0;
-            for (int c = 0; c < 3; c++) {
-                const int64_t x = gx[3 * (size_t)j + c], y = gy[3 * (size_t)j + c];
-                const int64_t m2 = x * x + y * y;
-                if (m2 > bm) { bm = m2; bx = (int32_t)x; by = (int32_t)y; }
-            }
-            m[j] = bm;
-            ox[j] = bx;
-            oy[j] = by;
-        }
+        const int32_t *r0 = &red[(size_t)i * nb];
+        gradient_row(r0, r0 + nb, r0 + 2 * nb, gw, V.data(), D.data(), &M[(size_t)(i + 1) * P + 1],
+                     &GX[(size_t)i * gw], &GY[(size_t)i * gw]);
     }
     const double emin2 = edge_min * edge_min;
     for (int i = 0; i < gh; i++) {
@@ -213,10 +240,11 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
 KERN2_CLONES void vote_cells(const double *sr, int n, double x, double y, double ux, double uy, int ws, int hs,
                              int32_t *cell)
 {
+    // x, y, sr are within the frame's size (<= 16384 * 2): floor32 is exact
     for (int k = 0; k < n; k++) {
-        const double X = std::floor(x - sr[k] * ux + 0.5), Y = std::floor(y - sr[k] * uy + 0.5);
-        const bool in = X >= 0.0 && X < (double)ws && Y >= 0.0 && Y < (double)hs;
-        cell[k] = in ? (int32_t)Y * ws + (int32_t)X : -1;
+        const int32_t X = floor32(x - sr[k] * ux + 0.5), Y = floor32(y - sr[k] * uy + 0.5);
+        const int32_t in = (X >= 0) & (X < ws) & (Y >= 0) & (Y < hs);
+        cell[k] = in ? Y * ws + X : -1;
     }
 }
 
@@ -274,38 +302,37 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
             if (cell[(size_t)k] >= 0) acc[(size_t)boff[(size_t)k] + (size_t)cell[(size_t)k]]++;
     }
     // 3 x 3 box sums per bin (zeros outside), then each bin plus the next;
-    // per cell its best bin (first on ties)
-    const int pw = ws + 2;
-    std::vector<int32_t> &row = scratch.row, &box = scratch.box, &hsum = scratch.hsum;
-    row.resize((size_t)pw);
-    fill(box, (size_t)(nb + 1) * plane, 0);
+    // per cell its best bin (first on ties). The box sum is linear: it is
+    // taken once of each bin plus the next.
+    std::vector<int32_t> &pair = scratch.box, &hsum = scratch.hsum, &vmax = scratch.vmax, &bmax = scratch.bmax;
+    pair.resize(plane);
     fill(hsum, (size_t)(hs + 2) * ws, 0);  // horizontal 3-sums, a zero row each side
-    for (int b = 0; b < nb; b++) {
-        const int32_t *a = &acc[(size_t)b * plane];
-        int32_t *o = &box[(size_t)b * plane];
-        for (int Y = 0; Y < hs; Y++) {
-            row[0] = row[(size_t)pw - 1] = 0;
-            std::copy(a + (size_t)Y * ws, a + (size_t)(Y + 1) * ws, row.begin() + 1);
-            int32_t *hrow = &hsum[(size_t)(Y + 1) * ws];
-            for (int X = 0; X < ws; X++) hrow[X] = row[(size_t)X] + row[(size_t)X + 1] + row[(size_t)X + 2];
-        }
-        for (int Y = 0; Y < hs; Y++) {
-            const int32_t *u = &hsum[(size_t)Y * ws], *c = u + ws, *d = c + ws;
-            int32_t *orow = o + (size_t)Y * ws;
-            for (int X = 0; X < ws; X++) orow[X] = u[X] + c[X] + d[X];
-        }
-    }
-    std::vector<int32_t> &vmax = scratch.vmax, &bmax = scratch.bmax;
     fill(vmax, plane, -1);
     fill(bmax, plane, 0);
     for (int b = 0; b < nb; b++) {
-        const int32_t *a = &box[(size_t)b * plane], *n = &box[(size_t)(b + 1) * plane];
-        int32_t *vm = vmax.data(), *bm = bmax.data();
-        for (size_t c = 0; c < plane; c++) {
-            const int32_t v = a[c] + n[c];
-            const bool gt = v > vm[c];
-            vm[c] = gt ? v : vm[c];
-            bm[c] = gt ? b : bm[c];
+        const int32_t *a = &acc[(size_t)b * plane];
+        if (b + 1 < nb) {
+            const int32_t *n = a + plane;
+            for (size_t c = 0; c < plane; c++) pair[c] = a[c] + n[c];
+        } else {
+            std::copy(a, a + plane, pair.begin());
+        }
+        for (int Y = 0; Y < hs; Y++) {
+            const int32_t *r = &pair[(size_t)Y * ws];
+            int32_t *hrow = &hsum[(size_t)(Y + 1) * ws];
+            hrow[0] = r[0] + (ws > 1 ? r[1] : 0);
+            for (int X = 1; X < ws - 1; X++) hrow[X] = r[X - 1] + r[X] + r[X + 1];
+            if (ws > 1) hrow[ws - 1] = r[ws - 2] + r[ws - 1];
+        }
+        for (int Y = 0; Y < hs; Y++) {
+            const int32_t *u = &hsum[(size_t)Y * ws], *c = u + ws, *d = c + ws;
+            int32_t *vm = &vmax[(size_t)Y * ws], *bm = &bmax[(size_t)Y * ws];
+            for (int X = 0; X < ws; X++) {
+                const int32_t v = u[X] + c[X] + d[X];
+                const bool gt = v > vm[X];
+                vm[X] = gt ? v : vm[X];
+                bm[X] = gt ? b : bm[X];
+            }
         }
     }
     const double sup = 0.5 * (double)lo;
@@ -359,6 +386,29 @@ inline bool sample(const Frame &f, double X, double Y, double v[3])
     return true;
 }
 
+// Bilinear interpolation, preprocess.py _sample's operations and order.
+KERN2_CLONES void bilinear(const int32_t *q00, const int32_t *q01, const int32_t *q10, const int32_t *q11,
+                           const double *fx, const double *fy, size_t n, double *v)
+{
+    for (size_t j = 0; j < n; j++) {
+        const double p00 = q00[j], p01 = q01[j], p10 = q10[j], p11 = q11[j];
+        const double top = p00 + fx[j] * (p01 - p00);
+        const double bot = p10 + fx[j] * (p11 - p10);
+        v[j] = top + fy[j] * (bot - top);
+    }
+}
+
+// The colour step at samples 1 .. ns - 2: the largest channel difference of
+// the samples either side (planar v: channel c at v[c * ns]).
+KERN2_CLONES void step_score(const double *v, size_t ns, double *score)
+{
+    const double *b = v, *g = v + ns, *r = v + 2 * ns;
+    for (size_t i = 0; i + 2 < ns; i++) {
+        const double d0 = std::fabs(b[i + 2] - b[i]), d1 = std::fabs(g[i + 2] - g[i]), d2 = std::fabs(r[i + 2] - r[i]);
+        score[i] = std::max(std::max(d0, d1), d2);
+    }
+}
+
 // Edge candidates per ray (see preprocess.py _ray_edges): ok[k] false for a
 // ray that leaves the frame; cands of ray k in cand[off[k] .. off[k + 1]).
 struct RayEdges {
@@ -376,23 +426,47 @@ void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     re.ok.assign((size_t)K, 0);
     re.off.assign((size_t)K + 1, 0);
     re.cand.clear();
-    std::vector<double> rho((size_t)n + 2), v((size_t)(n + 2) * 3), score((size_t)n);
+    const size_t ns = (size_t)n + 2;
+    thread_local std::vector<double> rho, X, Y, FX, FY, v, score;
+    thread_local std::vector<int32_t> Q;
+    rho.resize(ns);
+    X.resize(ns);
+    Y.resize(ns);
+    FX.resize(ns);
+    FY.resize(ns);
+    Q.resize(12 * ns);
+    v.resize(3 * ns);
+    score.resize((size_t)n);
     for (long j = 0; j < n + 2; j++) rho[(size_t)j] = r + ((double)(j - 1) - (double)m) * 0.5;
+    double p[3];
     for (int k = 0; k < K; k++) {
         re.off[(size_t)k] = (int)re.cand.size();
         const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
-        bool good = true;
-        for (long j = 0; j < n + 2 && good; j++) {
-            const double X = cx + rho[(size_t)j] * ux, Y = cy + rho[(size_t)j] * uy;
-            good = sample(f, X, Y, &v[3 * (size_t)j]);
+        for (size_t j = 0; j < ns; j++) {
+            X[j] = cx + rho[j] * ux;
+            Y[j] = cy + rho[j] * uy;
         }
-        if (!good) continue;
+        // the samples lie on a segment: inside when both ends are (the
+        // region [0, w - 1) x [0, h - 1) is convex)
+        if (!sample(f, X[0], Y[0], p) || !sample(f, X[ns - 1], Y[ns - 1], p)) continue;
         re.ok[(size_t)k] = 1;
-        for (long i = 0; i < n; i++) {
-            const double *a = &v[3 * (size_t)i], *b = &v[3 * (size_t)(i + 2)];
-            const double d0 = std::fabs(b[0] - a[0]), d1 = std::fabs(b[1] - a[1]), d2 = std::fabs(b[2] - a[2]);
-            score[(size_t)i] = std::max(std::max(d0, d1), d2);
+        // gather the corners (integers), then the arithmetic in a loop of its own
+        for (size_t j = 0; j < ns; j++) {
+            const int32_t x0 = (int32_t)X[j], y0 = (int32_t)Y[j];
+            FX[j] = X[j] - (double)x0;
+            FY[j] = Y[j] - (double)y0;
+            const uint8_t *a = f.p + (size_t)y0 * f.stride + 3 * (size_t)x0, *b = a + f.stride;
+            for (int c = 0; c < 3; c++) {
+                Q[(0 * 3 + c) * ns + j] = a[c];
+                Q[(1 * 3 + c) * ns + j] = a[3 + c];
+                Q[(2 * 3 + c) * ns + j] = b[c];
+                Q[(3 * 3 + c) * ns + j] = b[3 + c];
+            }
         }
+        for (int c = 0; c < 3; c++)
+            bilinear(&Q[(0 * 3 + c) * ns], &Q[(1 * 3 + c) * ns], &Q[(2 * 3 + c) * ns], &Q[(3 * 3 + c) * ns],
+                     FX.data(), FY.data(), ns, &v[c * ns]);
+        step_score(v.data(), ns, score.data());
         for (long i = 1; i < n - 1; i++) {
             const double c = score[(size_t)i], a = score[(size_t)i - 1], b = score[(size_t)i + 1];
             if (!(c >= thr && c >= a && c > b)) continue;
@@ -508,9 +582,10 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
 KERN2_CLONES void bin_indices(const double *rho, const double *ux, const double *uy, size_t n, double DX, double DY,
                               double base, double step, int32_t *bi)
 {
+    // values within a few hundred bins: floor32 is exact
     for (size_t i = 0; i < n; i++) {
         const double dot = DX * ux[i] + DY * uy[i];
-        bi[i] = (int32_t)std::floor(((rho[i] - dot) - base) / step);
+        bi[i] = floor32(((rho[i] - dot) - base) / step);
     }
 }
 
