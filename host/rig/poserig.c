@@ -4,7 +4,9 @@
  * time, grab a frame, estimate the orientation with libposeinfer, and record
  * commanded pose, stage-reported position, estimate, errors and timings.
  * Writes OUT/poses.csv after every pose, then OUT/summary.md, OUT/boxplot.svg
- * and a Table 3 style summary on stdout. The stage port and the camera are
+ * and a Table 3 style summary on stdout: over the poses the model is
+ * confident of, with the flagged ones listed apart and the statistics over
+ * all measured poses beside them. The stage port and the camera are
  * whatever the options name: the simulated rig (stagesim's pty and the
  * virtual camera's unix: socket) takes no special case here. */
 #define _DEFAULT_SOURCE
@@ -44,7 +46,9 @@ static void usage(FILE *f) {
           "\n"
           "Moves the stage through the plan; at each pose grabs a frame, estimates the\n"
           "sphere's orientation and records it; writes OUT/poses.csv, OUT/summary.md,\n"
-          "OUT/boxplot.svg and prints a Table 3 style error summary (degrees).\n"
+          "OUT/boxplot.svg and prints a Table 3 style error summary (degrees). A model that\n"
+          "carries its texture refines and judges every estimate (docs/refine.md): the summary\n"
+          "is over the confident poses, the flagged ones listed apart, then over all poses.\n"
           "\n"
           "  --port PATH|auto    stage serial port or pty (default auto: first Arduino by USB VID:PID)\n"
           "  --camera SPEC       /dev/videoN, N, gst:PIPELINE or unix:PATH (libposeinfer)\n"
@@ -64,6 +68,7 @@ static void usage(FILE *f) {
           "  --allow-default-settings  run even when the controller restored its default settings\n"
           "                      (EEPROM CRC failure); without it such a stage is refused\n"
           "  --threads N         inference threads (default: libposeinfer's)\n"
+          "  --no-refine         the network's angles, not refined (still judged, at them)\n"
           "  --camera-timeout MS connect/grab deadline of unix: cameras (default 5000)\n"
           "  --banner-timeout MS --timeout MS --poll MS --move-timeout MS   stage client deadlines\n"
           "                      (defaults 5000, 2000, 100, 120000)\n"
@@ -195,7 +200,7 @@ static int parse_args(int argc, char **argv, rig_args *a) {
         {"threads", required_argument, 0, 't'},   {"camera-timeout", required_argument, 0, 'C'},
         {"banner-timeout", required_argument, 0, 'b'}, {"timeout", required_argument, 0, 'T'},
         {"poll", required_argument, 0, 'l'},      {"move-timeout", required_argument, 0, 'M'},
-        {"allow-default-settings", no_argument, 0, 'D'},
+        {"allow-default-settings", no_argument, 0, 'D'}, {"no-refine", no_argument, 0, 'R'},
         {"verbose", no_argument, 0, 'v'},         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
@@ -252,6 +257,7 @@ static int parse_args(int argc, char **argv, rig_args *a) {
             a->so.home_timeout_ms = a->so.move_timeout_ms;
             break;
         case 'D': a->allow_defaults = 1; break;
+        case 'R': a->piopt.no_refine = 1; break;
         case 'v': a->so.log = stderr; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return EXIT_USAGE;
@@ -456,6 +462,13 @@ static int measure_pose(const rig_args *a, rig_run *r, int i) {
     row->est[2] = res.z;
     row->preprocess_ms = res.preprocess_ms;
     row->infer_ms = res.infer_ms;
+    if (res.has_confidence) {
+        row->has_conf = 1;
+        row->confident = res.confident;
+        row->residual = res.residual;
+        row->refine_ms = res.refine_ms;
+        snprintf(row->note, sizeof(row->note), "%s", res.confident ? "" : res.note);
+    }
     row->cx = res.cx;
     row->cy = res.cy;
     row->r = res.r;
@@ -464,8 +477,9 @@ static int measure_pose(const rig_args *a, rig_run *r, int i) {
     row->ok = 1;
     snprintf(row->status, sizeof(row->status), "ok");
     fprintf(stderr, "poserig: pose %d/%d cmd (%.3f, %.3f, %.3f) est (%.3f, %.3f, %.3f) "
-                    "err (%.3f, %.3f, %.3f)\n", i + 1, r->npose, row->cmd[0], row->cmd[1], row->cmd[2],
-            row->est[0], row->est[1], row->est[2], row->err[0], row->err[1], row->err[2]);
+                    "err (%.3f, %.3f, %.3f)%s%s\n", i + 1, r->npose, row->cmd[0], row->cmd[1], row->cmd[2],
+            row->est[0], row->est[1], row->est[2], row->err[0], row->err[1], row->err[2],
+            rig_row_flagged(row) ? " flagged: " : "", rig_row_flagged(row) ? row->note : "");
 row_done:
     row->pose_ms = now_ms() - t0;
     /* Rewritten whole after every pose: a run stopped in any way keeps
@@ -498,7 +512,7 @@ static void run_plan(const rig_args *a, rig_run *r) {
 /* Write poses.csv, summary.md and boxplot.svg and print the Table 3
  * summary. Returns the exit status of the run. */
 static int report(const rig_args *a, rig_run *r) {
-    rig_summary sum;
+    rig_results sum;
     rig_run_info info;
     char err[RIG_ERR_LEN], path[4096];
     int rc = 0;
@@ -514,6 +528,8 @@ static int report(const rig_args *a, rig_run *r) {
     info.stopped = r->stopped;
     info.elapsed_s = (now_ms() - r->t_start) / 1000.0;
     info.settle_ms = a->settle_ms;
+    info.confidence = r->ctx ? pi_metadata(r->ctx, "spherepose.confidence") : NULL;
+    info.no_refine = a->piopt.no_refine;
     snprintf(info.started, sizeof(info.started), "%s", r->started);
     snprintf(path, sizeof(path), "%s/poses.csv", a->out);
     if (rig_write_csv(path, r->rows, r->nrows, err) != 0 ||
@@ -521,7 +537,7 @@ static int report(const rig_args *a, rig_run *r) {
         fprintf(stderr, "poserig: %s\n", err);
         rc = EXIT_SOME_FAILED;
     } else {
-        rig_print_summary(stdout, &info, &sum);
+        rig_print_summary(stdout, &info, &sum, r->rows, r->nrows);
         snprintf(path, sizeof(path), "%s/summary.md", a->out);
         if (rig_write_summary_md(path, &info, &sum, r->rows, r->nrows, err) != 0) {
             fprintf(stderr, "poserig: %s\n", err);

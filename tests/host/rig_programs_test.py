@@ -170,10 +170,17 @@ def test_stagectl_missing_port():
 
 # ---- poserig -----------------------------------------------------------
 
-def sphere_frame(seed=0, blank=False):
-    """A 320x256 frame: dark background and, unless blank, a striped disc."""
+def sphere_frame(seed=0, blank=False, shaded=False):
+    """A 320x256 frame: dark background and, unless blank, a striped disc (shaded: a disc whose
+    brightness is linear in the sphere's normal, which any pose of a uniform texture explains)."""
     img = np.full((256, 320, 3), 30, np.uint8)
-    if not blank:
+    if shaded:
+        yy, xx = np.mgrid[0:256, 0:320]
+        v = 150 + 60 * (xx - 170) / 70 - 30 * (yy - 120) / 70
+        disc = np.stack([v, 0.9 * v, 0.8 * v], -1).clip(0, 255).astype(np.uint8)
+        inside = np.hypot(xx - 170, yy - 120) <= 70
+        img[inside] = disc[inside]
+    elif not blank:
         rng = np.random.default_rng(seed)
         disc = np.zeros_like(img)
         for i in range(0, 320, 12):
@@ -237,6 +244,32 @@ def model(tmp_path_factory):
     p = tmp_path_factory.mktemp("model") / "model.onnx"
     onnx.save(make_model.build("good"), str(p))
     return p
+
+
+def write_judging_model(path):
+    """The test model carrying a texture and thresholds (docs/refine.md), so that poseinfer's
+    library refines and judges every frame. The texture is nearly uniform: a shaded disc
+    (sphere_frame(shaded=True)) is explained at any pose (residual about 0.05), a striped one is
+    not (about 0.99). The range margin keeps the test network's arbitrary angles in range, so the
+    residual alone decides."""
+    import json
+    import make_model
+    import onnx
+    from training import refine
+    m = make_model.build("good")
+    small = np.random.default_rng(3).standard_normal((8, 16, 3)) * 40 + 128
+    tex = cv2.resize(small.clip(0, 255).astype(np.uint8), (1024, 512), interpolation=cv2.INTER_CUBIC)
+    for k, v in {refine.META_TEXTURE: refine.texture_png_b64(tex),
+                 refine.META_CONFIDENCE: json.dumps({"residual_max": 0.5, "range_margin_deg": 180})}.items():
+        p = m.metadata_props.add()
+        p.key, p.value = k, v
+    onnx.save(m, str(path))
+    return path
+
+
+@pytest.fixture(scope="module")
+def judging_model(tmp_path_factory):
+    return write_judging_model(tmp_path_factory.mktemp("model") / "judging.onnx")
 
 
 @pytest.fixture
@@ -327,6 +360,11 @@ def test_poserig_random_run(tmp_path, fake, camera, model):
     assert float(mae_line[3]) == pytest.approx(np.sqrt((e ** 2).mean()), abs=2e-3)
     assert (out / "summary.md").read_text().count("| X-axis |") == 1
     assert (out / "boxplot.svg").read_text().startswith("<svg")
+    # A model without its texture judges nothing: the columns are there, empty, and the summary
+    # says why it is not split.
+    assert all(row["confident"] == "" and row["residual"] == "" and row["note"] == "" for row in rows)
+    assert "Confidence: none (the model carries no texture" in r.stdout
+    assert "confidence | none" in (out / "summary.md").read_text()
     assert not list(out.glob("*.tmp"))
     # Same seed, same plan: the commanded poses are reproducible.
     sent = [l for l in f.log_lines() if l.startswith("line G90")]
@@ -423,3 +461,80 @@ def test_poserig_sigint_keeps_partial_results(tmp_path, fake, camera, model):
     log = f.log_lines()
     assert "rt 0x21" in log and "rt 0x18" in log
     assert log.index("rt 0x21") < log.index("rt 0x18")
+
+
+def tables(stdout):
+    """The Table 3 blocks of poserig's stdout: [{axis name: [mean, std, rmse, max]}, ...] in order."""
+    out = []
+    for l in stdout.splitlines():
+        w = l.split()
+        if w and w[0] == "Parameter":
+            out.append({})
+        elif w and out and w[0] in ("X-axis", "Y-axis", "Z-axis", "Geodesic"):
+            out[-1][w[0]] = [float(v) for v in w[1:]]
+    return out
+
+
+def check_table(table, rows):
+    e = np.array([[float(row[f"err_{a}"]) for a in "xyz"] for row in rows])
+    for k, name in enumerate(("X-axis", "Y-axis", "Z-axis")):
+        assert table[name] == pytest.approx([e[:, k].mean(), e[:, k].std(), np.sqrt((e[:, k] ** 2).mean()),
+                                             e[:, k].max()], abs=2e-3)
+
+
+def test_poserig_flagged_pose_reported_apart(tmp_path, fake, camera, judging_model):
+    """A model with its texture judges every pose: `confident`, `residual` and `note` in poses.csv;
+    a flagged pose is listed apart and left out of the confident statistics, which come first,
+    and the statistics over all measured poses follow."""
+    plan = tmp_path / "plan.csv"
+    plan.write_text("x,y,z\n1,2,3\n-4,5,-6\n7.5,0,0\n10,10,10\n0,0,0\n")
+    f = fake(BANNER + "\nauto 1\n")
+    # Pose 2's frame is a striped disc the texture cannot explain; pose 4 gets no frame.
+    cam = camera([sphere_frame(shaded=True)] * 2 + [sphere_frame(5)] + [sphere_frame(shaded=True)]
+                 + ["sensor timeout"])
+    out = tmp_path / "run"
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", judging_model, "--plan", plan,
+                "--settle", 0, "--out", out)
+    assert r.returncode == 1, r.stderr            # pose 4 failed; a flagged pose is not a failure
+    rows = read_rows(out)
+    assert list(rows[0])[list(rows[0]).index("sphere_r") + 1:][:2] == ["confident", "residual"]
+    assert [row["status"] == "ok" for row in rows] == [True, True, True, True, False]
+    assert [row["confident"] for row in rows] == ["true", "true", "false", "true", ""]
+    assert float(rows[2]["residual"]) > 0.5 and "poor alignment" in rows[2]["note"]
+    for i in (0, 1, 3):
+        assert float(rows[i]["residual"]) < 0.5 and rows[i]["note"] == ""
+    assert rows[4]["residual"] == "" and rows[4]["note"] == ""
+    assert float(rows[0]["refine_ms"]) > 0
+
+    lines = r.stdout.splitlines()
+    assert lines[0].startswith("Error analysis of 3 confident pose(s) (degrees; 5 planned, 1 failed, 1 flagged")
+    assert "Flagged, left out of the table above: 1 of 4 measured pose(s): 2" in lines
+    assert any(l.startswith("  pose 2 cmd (7.500, 0.000, 0.000)") and "poor alignment" in l for l in lines)
+    confident, everything = tables(r.stdout)
+    check_table(confident, [rows[i] for i in (0, 1, 3)])
+    check_table(everything, rows[:4])
+    mae = [float(l.split()[1]) for l in lines if l.startswith("MAE")]
+    e = np.array([[float(row[f"err_{a}"]) for a in "xyz"] for row in rows[:4]])
+    assert mae == pytest.approx([e[[0, 1, 3]].mean(), e.mean()], abs=2e-3)
+
+    md = (out / "summary.md").read_text()
+    assert "| measured: confident / flagged | 3 / 1 |" in md and "residual_max" in md
+    flagged = md[md.index("## Flagged poses (not confident, 1)"):]
+    assert "\n| 2 | 7.500, 0.000, 0.000 |" in flagged and "poor alignment" in flagged
+    assert md.count("| X-axis |") == 2
+    assert md.index("| X-axis |") < md.index("## Flagged poses") < md.rindex("| X-axis |")
+    assert "| refinement |" in md
+    svg = (out / "boxplot.svg").read_text()
+    assert "n = 3 confident" in svg and "pose 2 (flagged)" in svg
+
+    # --no-refine: still judged (at the network's angles), the residual reported.
+    out2 = tmp_path / "run2"
+    cam2 = camera([sphere_frame(shaded=True), sphere_frame(5)])
+    f2 = fake(BANNER + "\nauto 1\n")
+    plan.write_text("1,2,3\n4,5,6\n")
+    r = poserig("--port", f2.pty, "--camera", f"unix:{cam2.path}", "--model", judging_model, "--plan", plan,
+                "--settle", 0, "--out", out2, "--no-refine")
+    assert r.returncode == 0, r.stderr
+    rows = read_rows(out2)
+    assert [row["confident"] for row in rows] == ["true", "false"] and all(row["residual"] for row in rows)
+    assert "--no-refine" in (out2 / "summary.md").read_text()

@@ -143,19 +143,16 @@ def test_hold_then_reset_keeps_true_position(sim):
 
 def test_poserig_homes_and_reaches_each_pose(sim, tmp_path):
     need(RIG / "poserig", "make -C host && make -C host/rig")
-    import numpy as np
-    import onnx
     cv2 = pytest.importorskip("cv2")
     import sys
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import make_model
-    from rig_programs_test import FrameServer, sphere_frame
+    from rig_programs_test import FrameServer, sphere_frame, write_judging_model
 
     s = sim(["--limits", "3,3,3"])
     stagectl(s, "set", 22, 1)                 # homing on
-    model = tmp_path / "model.onnx"
-    onnx.save(make_model.build("good"), str(model))
-    cam = FrameServer(tmp_path / "cam.sock", [sphere_frame(1)])
+    # A model that judges its estimates; the second pose's frame is one it must flag.
+    model = write_judging_model(tmp_path / "model.onnx")
+    cam = FrameServer(tmp_path / "cam.sock", [sphere_frame(shaded=True), sphere_frame(1), sphere_frame(shaded=True)])
     plan = tmp_path / "plan.csv"
     poses = [[1.5, -2.0, 0.5], [-1.0, 0.25, 2.0], [0.0, 0.0, -1.125]]
     plan.write_text("x,y,z\n" + "".join(f"{x},{y},{z}\n" for x, y, z in poses))
@@ -176,3 +173,6 @@ def test_poserig_homes_and_reaches_each_pose(sim, tmp_path):
     st = s.state()
     assert [st["x"], st["y"], st["z"]] != [0, 0, 0]
     assert "X-axis" in r.stdout
+    assert [row["confident"] for row in rows] == ["true", "false", "true"]
+    assert "Flagged, left out of the table above: 1 of 3 measured pose(s): 1" in r.stdout
+    assert "## Flagged poses (not confident, 1)" in (out / "summary.md").read_text()

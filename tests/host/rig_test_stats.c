@@ -203,8 +203,8 @@ static void test_parse_range(void **state) {
 
 static void test_report_files(void **state) {
     rig_row rows[3];
-    rig_summary s;
-    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam", "m.onnx", "test", 3, 2, 1, NULL, 1.5, 100, "2025-01-01T00:00:00Z"};
+    rig_results s;
+    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam", "m.onnx", "test", 3, 2, 1, NULL, 1.5, 100, "2025-01-01T00:00:00Z", NULL, 0};
     char err[RIG_ERR_LEN], dir[64], path[128], buf[8192];
     FILE *f;
     size_t len;
@@ -221,8 +221,13 @@ static void test_report_files(void **state) {
     snprintf(dir, sizeof(dir), "/tmp/rig_report_XXXXXX");
     assert_non_null(mkdtemp(dir));
     assert_int_equal(rig_summarise_rows(rows, 3, &s, err), 0);
-    assert_int_equal(s.n, 2);
-    assert_float_equal(s.axis[0].err, (0.5 + 2.5) / 2, 1e-12);
+    assert_int_equal(s.all.n, 2);
+    assert_float_equal(s.all.axis[0].err, (0.5 + 2.5) / 2, 1e-12);
+    /* A model without its texture judges nothing: every measured pose counts. */
+    assert_int_equal(s.judged, 0);
+    assert_int_equal(s.flagged, 0);
+    assert_int_equal(s.confident.n, 2);
+    assert_float_equal(s.confident.axis[0].err, s.all.axis[0].err, 1e-12);
     snprintf(path, sizeof(path), "%s/poses.csv", dir);
     assert_int_equal(rig_write_csv(path, rows, 3, err), 0);
     f = fopen(path, "r");
@@ -231,6 +236,8 @@ static void test_report_files(void **state) {
     buf[len] = '\0';
     fclose(f);
     assert_non_null(strstr(buf, "index,cmd_x,cmd_y,cmd_z,"));
+    assert_non_null(strstr(buf, ",sphere_r,confident,residual,"));
+    assert_non_null(strstr(buf, ",status,note,frame\n"));
     assert_non_null(strstr(buf, "\"pi_infer_frame: no sphere, \"\"found\"\"\""));
     unlink(path);
     snprintf(path, sizeof(path), "%s/summary.md", dir);
@@ -242,6 +249,145 @@ static void test_report_files(void **state) {
     /* A folder that does not exist: an error naming the file, no crash. */
     assert_int_equal(rig_write_csv("/nonexistent/dir/poses.csv", rows, 3, err), -1);
     assert_non_null(strstr(err, "/nonexistent/dir/poses.csv"));
+    rmdir(dir);
+}
+
+/* Read a whole (small) file into buf. */
+static void slurp(const char *path, char *buf, size_t len) {
+    FILE *f = fopen(path, "r");
+    size_t k;
+    assert_non_null(f);
+    k = fread(buf, 1, len - 1, f);
+    buf[k] = '\0';
+    fclose(f);
+}
+
+/* The CSV line of pose `index` (after the header), copied into line. */
+static void csv_line(const char *buf, int index, char *line, size_t len) {
+    const char *p = strchr(buf, '\n');
+    char want[16];
+    size_t k;
+    snprintf(want, sizeof(want), "%d,", index);
+    for (; p && *p; p = strchr(p + 1, '\n'))
+        if (strncmp(p + 1, want, strlen(want)) == 0) break;
+    assert_non_null(p);
+    p++;
+    for (k = 0; p[k] && p[k] != '\n' && k + 1 < len; k++) line[k] = p[k];
+    line[k] = '\0';
+}
+
+/* Five measured poses, one flagged, one flagged with no residual, one
+ * failed: the flagged ones are left out of the confident statistics, listed
+ * apart, and counted in the all-poses statistics. */
+static void test_flagged_poses(void **state) {
+    rig_row rows[6];
+    rig_results s;
+    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam", "m.onnx", "test", 6, 5, 1, NULL, 1.5, 100,
+                         "2025-01-01T00:00:00Z", "{\"residual_max\": 0.1}", 0};
+    char err[RIG_ERR_LEN], dir[64], path[128], buf[16384], line[1024], *text = NULL;
+    size_t textlen = 0;
+    FILE *f;
+    int i;
+    (void)state;
+    memset(rows, 0, sizeof(rows));
+    for (i = 0; i < 6; i++) {
+        int k;
+        rows[i].index = i;
+        rows[i].cmd[0] = i;
+        rows[i].ok = i != 4;
+        rows[i].has_conf = rows[i].ok;
+        rows[i].confident = i != 1 && i != 3;
+        rows[i].residual = i == 3 ? NAN : 0.01 * (i + 1);
+        for (k = 0; k < 3; k++) rows[i].err[k] = 0.1 * (i + 1) + k;
+        rows[i].geo = 0.2 * (i + 1);
+        snprintf(rows[i].status, sizeof(rows[i].status), "%s", rows[i].ok ? "ok" : "camera: gone");
+    }
+    rows[1].err[0] = 40;                /* far off, and flagged: must not reach the table */
+    rows[1].residual = 0.9;
+    snprintf(rows[1].note, sizeof(rows[1].note), "poor alignment (residual 0.900 > 0.100): another texture");
+    snprintf(rows[3].note, sizeof(rows[3].note), "refine: circle too small or outside the frame");
+    assert_int_equal(rig_row_flagged(&rows[1]), 1);
+    assert_int_equal(rig_row_flagged(&rows[0]), 0);
+    assert_int_equal(rig_row_flagged(&rows[4]), 0);   /* no estimate: failed, not flagged */
+
+    assert_int_equal(rig_summarise_rows(rows, 6, &s, err), 0);
+    assert_int_equal(s.measured, 5);
+    assert_int_equal(s.judged, 5);
+    assert_int_equal(s.flagged, 2);
+    assert_int_equal(s.confident.n, 3);           /* poses 0, 2, 5 */
+    assert_int_equal(s.all.n, 5);
+    assert_float_equal(s.confident.axis[0].err, (0.1 + 0.3 + 0.6) / 3, 1e-12);
+    assert_float_equal(s.confident.axis[0].max, 0.6, 1e-12);
+    assert_float_equal(s.confident.geo.err, (0.2 + 0.6 + 1.2) / 3, 1e-12);
+    assert_float_equal(s.all.axis[0].err, (0.1 + 40 + 0.3 + 0.4 + 0.6) / 5, 1e-12);
+    assert_float_equal(s.all.axis[0].max, 40, 1e-12);
+
+    snprintf(dir, sizeof(dir), "/tmp/rig_report_XXXXXX");
+    assert_non_null(mkdtemp(dir));
+    snprintf(path, sizeof(path), "%s/poses.csv", dir);
+    assert_int_equal(rig_write_csv(path, rows, 6, err), 0);
+    slurp(path, buf, sizeof(buf));
+    csv_line(buf, 0, line, sizeof(line));
+    assert_non_null(strstr(line, ",true,0.01000,"));
+    assert_non_null(strstr(line, ",\"ok\",\"\","));
+    csv_line(buf, 1, line, sizeof(line));
+    assert_non_null(strstr(line, ",false,0.90000,"));
+    assert_non_null(strstr(line, ",\"ok\",\"poor alignment (residual 0.900 > 0.100): another texture\","));
+    csv_line(buf, 3, line, sizeof(line));
+    assert_non_null(strstr(line, ",false,,"));     /* refinement could not run: no residual */
+    csv_line(buf, 4, line, sizeof(line));
+    assert_non_null(strstr(line, ",,,"));          /* no estimate: nothing judged */
+    assert_null(strstr(line, "true"));
+    assert_null(strstr(line, "false"));
+    unlink(path);
+
+    snprintf(path, sizeof(path), "%s/summary.md", dir);
+    assert_int_equal(rig_write_summary_md(path, &info, &s, rows, 6, err), 0);
+    slurp(path, buf, sizeof(buf));
+    assert_non_null(strstr(buf, "| measured: confident / flagged | 3 / 2 |"));
+    assert_non_null(strstr(buf, "## Flagged poses (not confident, 2)"));
+    assert_non_null(strstr(buf, "| 1 | 1.000, 0.000, 0.000 |"));
+    assert_non_null(strstr(buf, "| 0.9000 | poor alignment (residual 0.900 > 0.100): another texture |"));
+    assert_non_null(strstr(buf, "| n/a | refine: circle too small"));
+    assert_null(strstr(buf, "| 0 | 0.000, 0.000, 0.000 |"));   /* a confident pose is not listed */
+    /* The confident table first (max 0.600), then all poses (max 40.000). */
+    assert_non_null(strstr(buf, "| X-axis | 0.333 | "));
+    assert_true(strstr(buf, "| X-axis | 0.333 | ") < strstr(buf, "all 5 measured poses"));
+    assert_non_null(strstr(strstr(buf, "all 5 measured poses"), "| X-axis | 8.280 | "));
+    assert_non_null(strstr(strstr(buf, "all 5 measured poses"), "| 40.000 |"));
+    unlink(path);
+
+    f = open_memstream(&text, &textlen);
+    assert_non_null(f);
+    rig_print_summary(f, &info, &s, rows, 6);
+    fclose(f);
+    assert_non_null(strstr(text, "Error analysis of 3 confident pose(s) (degrees; 6 planned, 1 failed, 2 flagged)"));
+    assert_non_null(strstr(text, "Flagged, left out of the table above: 2 of 5 measured pose(s): 1, 3\n"));
+    assert_non_null(strstr(text, "  pose 1 cmd (1.000, 0.000, 0.000) geodesic 0.400 residual 0.9000: poor alignment"));
+    assert_non_null(strstr(text, "All 5 measured pose(s), flagged included"));
+    /* The first X-axis row is the confident one. */
+    assert_non_null(strstr(text, "X-axis          0.333     0.205     0.392     0.600\n"));
+    assert_true(strstr(text, "X-axis          0.333") < strstr(text, "All 5 measured"));
+    free(text);
+
+    snprintf(path, sizeof(path), "%s/boxplot.svg", dir);
+    assert_int_equal(rig_write_boxplot_svg(path, &s, rows, 6, err), 0);
+    slurp(path, buf, sizeof(buf));
+    assert_non_null(strstr(buf, "n = 3 confident"));
+    assert_non_null(strstr(buf, "<title>pose 1 (flagged): 40.000</title>"));
+    unlink(path);
+
+    /* Nothing flagged: one table, said to cover every pose. */
+    rows[1].confident = rows[3].confident = 1;
+    assert_int_equal(rig_summarise_rows(rows, 6, &s, err), 0);
+    assert_int_equal(s.flagged, 0);
+    text = NULL;
+    f = open_memstream(&text, &textlen);
+    rig_print_summary(f, &info, &s, rows, 6);
+    fclose(f);
+    assert_non_null(strstr(text, "Flagged: none"));
+    assert_null(strstr(text, "All 5 measured"));
+    free(text);
     rmdir(dir);
 }
 
@@ -258,6 +404,7 @@ int main(void) {
         cmocka_unit_test(test_plan_random),
         cmocka_unit_test(test_parse_range),
         cmocka_unit_test(test_report_files),
+        cmocka_unit_test(test_flagged_poses),
     };
     return cmocka_run_group_tests_name("rig_stats", tests, NULL, NULL);
 }
