@@ -36,8 +36,14 @@ int main(int argc, char **argv)
     int rounds, nimg, rc = 1;
     double *t_run = NULL, *t_dec = NULL, *t_full = NULL, *t_fd = NULL, *t_fp = NULL, *t_fi = NULL, *t_fr = NULL;
 
+    const char *camera_file = NULL;
+    if (argc > 2 && strcmp(argv[1], "--camera-file") == 0) {  /* a sphere-crop-v2 model's camera */
+        camera_file = argv[2];
+        argv += 2;
+        argc -= 2;
+    }
     if (argc < 6) {
-        fprintf(stderr, "usage: infer_bench MODEL ROUNDS THREADS wall|cpu IMAGE...\n");
+        fprintf(stderr, "usage: infer_bench [--camera-file FILE] MODEL ROUNDS THREADS wall|cpu IMAGE...\n");
         return 2;
     }
     rounds = atoi(argv[2]);
@@ -46,6 +52,7 @@ int main(int argc, char **argv)
     size_t n = (size_t)rounds * nimg;
     pi_options_init(&o);
     o.intra_threads = atoi(argv[3]);
+    o.camera_file = camera_file;
     ctx = pi_open(argv[1], &o, err);
     if (!ctx) { fprintf(stderr, "infer_bench: %s\n", err); return 2; }
     m = shim_mat_new();

@@ -864,6 +864,24 @@ void undistort_map(const pp_camera *cam, int w, int h, UndistortMap *m)
             m->my[(size_t)j * w + i] = (int64_t)my;
         }
     }
+    const size_t n = (size_t)w * h;
+    m->x0.resize(n);
+    m->y0.resize(n);
+    m->ax.resize(n);
+    m->ay.resize(n);
+    m->inside.resize(n);
+    for (size_t k = 0; k < n; k++) {
+        // floor division by 32 (Python's >>), remainder in 0..31
+        const int64_t mx = m->mx[k], my = m->my[k];
+        const int64_t x0 = mx >= 0 ? mx / 32 : -((-mx + 31) / 32);
+        const int64_t y0 = my >= 0 ? my / 32 : -((-my + 31) / 32);
+        m->ax[k] = (uint8_t)(mx - x0 * 32);
+        m->ay[k] = (uint8_t)(my - y0 * 32);
+        m->inside[k] = x0 >= 0 && x0 + 1 < w && y0 >= 0 && y0 + 1 < h;
+        // beyond the frame all four corners read 0: any position out there will do
+        m->x0[k] = (int32_t)std::max<int64_t>(-2, std::min<int64_t>(x0, w + 1));
+        m->y0[k] = (int32_t)std::max<int64_t>(-2, std::min<int64_t>(y0, h + 1));
+    }
 }
 
 void remap(const uint8_t *bgr, size_t stride, const UndistortMap &m, uint8_t *out)
@@ -871,20 +889,24 @@ void remap(const uint8_t *bgr, size_t stride, const UndistortMap &m, uint8_t *ou
     const int w = m.w, h = m.h;
     for (int j = 0; j < h; j++) {
         for (int i = 0; i < w; i++) {
-            const int64_t mx = m.mx[(size_t)j * w + i], my = m.my[(size_t)j * w + i];
-            // floor division by 32 (Python's >>), remainder in 0..31
-            const int64_t x0 = mx >= 0 ? mx / 32 : -((-mx + 31) / 32);
-            const int64_t y0 = my >= 0 ? my / 32 : -((-my + 31) / 32);
-            const int64_t ax = mx - x0 * 32, ay = my - y0 * 32;
-            const int64_t w00 = (32 - ax) * (32 - ay), w01 = ax * (32 - ay), w10 = (32 - ax) * ay, w11 = ax * ay;
+            const size_t k = (size_t)j * w + i;
+            const int32_t ax = m.ax[k], ay = m.ay[k], x0 = m.x0[k], y0 = m.y0[k];
+            const int32_t w00 = (32 - ax) * (32 - ay), w01 = ax * (32 - ay), w10 = (32 - ax) * ay, w11 = ax * ay;
+            uint8_t *o = out + 3 * k;
+            if (m.inside[k]) {
+                const uint8_t *a = bgr + (size_t)y0 * stride + 3 * (size_t)x0, *b = a + stride;
+                for (int c = 0; c < 3; c++)
+                    o[c] = (uint8_t)((a[c] * w00 + a[3 + c] * w01 + b[c] * w10 + b[3 + c] * w11 + 512) >> 10);
+                continue;
+            }
+            // a corner outside the frame reads 0
             const bool in0x = x0 >= 0 && x0 < w, in1x = x0 + 1 >= 0 && x0 + 1 < w;
             const bool in0y = y0 >= 0 && y0 < h, in1y = y0 + 1 >= 0 && y0 + 1 < h;
-            uint8_t *o = out + 3 * ((size_t)j * w + i);
             for (int c = 0; c < 3; c++) {
-                const int64_t p00 = in0x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)x0 + c] : 0;
-                const int64_t p01 = in1x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)(x0 + 1) + c] : 0;
-                const int64_t p10 = in0x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)x0 + c] : 0;
-                const int64_t p11 = in1x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)(x0 + 1) + c] : 0;
+                const int32_t p00 = in0x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)x0 + c] : 0;
+                const int32_t p01 = in1x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)(x0 + 1) + c] : 0;
+                const int32_t p10 = in0x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)x0 + c] : 0;
+                const int32_t p11 = in1x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)(x0 + 1) + c] : 0;
                 o[c] = (uint8_t)((p00 * w00 + p01 * w01 + p10 * w10 + p11 * w11 + 512) >> 10);
             }
         }

@@ -33,6 +33,10 @@ void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy,
 struct UndistortMap {
     int w = 0, h = 0;
     std::vector<int64_t> mx, my;
+    // the same, ready to use: top-left corner, weights in 1/32, and whether
+    // all four corners are inside the frame
+    std::vector<int32_t> x0, y0;
+    std::vector<uint8_t> ax, ay, inside;
 };
 void undistort_map(const pp_camera *cam, int w, int h, UndistortMap *m);
 
