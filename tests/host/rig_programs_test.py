@@ -526,6 +526,15 @@ def test_poserig_flagged_pose_reported_apart(tmp_path, fake, camera, judging_mod
     assert "| refinement |" in md
     svg = (out / "boxplot.svg").read_text()
     assert "n = 3 confident" in svg and "pose 2 (flagged)" in svg
+    # scripts/rig_plots.py reads the new columns: the confident poses plotted, the flagged marked.
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import rig_plots
+    cmd, est, index, flagged = rig_plots.load(out / "poses.csv")
+    assert index.tolist() == [0, 1, 2, 3] and flagged.tolist() == [False, False, True, False]
+    p = subprocess.run([sys.executable, str(ROOT / "scripts" / "rig_plots.py"), str(out)], capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert all((out / f"rig_{n}.png").stat().st_size > 0 for n in ("box", "panels", "poses"))
 
     # --no-refine: still judged (at the network's angles), the residual reported.
     out2 = tmp_path / "run2"
