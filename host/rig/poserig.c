@@ -75,8 +75,9 @@ static void usage(FILE *f) {
           "  -v, --verbose       trace the serial traffic on stderr\n"
           "  -h, --help          this text\n"
           "\n"
-          "Exit status: 0 every pose measured; 1 some poses failed or the stage stopped the run;\n"
-          "2 usage or set-up error; 128+signal when stopped by SIGINT/SIGTERM (partial results kept).\n",
+          "Exit status: 0 every pose measured (flagged ones too); 1 some poses failed or the stage\n"
+          "stopped the run; 2 usage or set-up error; 128+signal when stopped by SIGINT/SIGTERM\n"
+          "(partial results kept).\n",
           f);
 }
 
