@@ -350,11 +350,14 @@ def _coarse(frame, p, rmin, rmax):
         idx = (B[ok] * hs + Y[ok].astype(np.int64)) * ws + X[ok].astype(np.int64)
         acc += np.bincount(idx, minlength=nb * hs * ws)
     acc = acc.reshape(nb, hs, ws)
-    # 3 x 3 box sum per bin (zeros outside), then each bin with the next one
-    P = np.zeros((nb + 1, hs + 2, ws + 2), np.int64)
-    P[:nb, 1:-1, 1:-1] = acc
-    box = sum(P[:, i:i + hs, j:j + ws] for i in range(3) for j in range(3))
-    work = box[:nb] + box[1:nb + 1]
+    # 3 x 3 box sum per bin (zeros outside), then each bin with the next one (the same as the
+    # box sum of each bin plus the next: integers)
+    pair = acc.copy()
+    pair[:-1] += acc[1:]
+    P = np.zeros((nb, hs + 2, ws + 2), np.int64)
+    P[:, 1:-1, 1:-1] = pair
+    hsum = P[:, :, :-2] + P[:, :, 1:-1] + P[:, :, 2:]
+    work = hsum[:, :-2] + hsum[:, 1:-1] + hsum[:, 2:]
     # per centre its best radius bin (first on ties); peaks in row-major order (first on ties)
     vmax = work.max(axis=0)
     bmax = work.argmax(axis=0)
@@ -530,32 +533,32 @@ def _fit_rays(cands, dirs, ox, oy, cx, cy, r, p):
     candidate nearest the current circle, weights it by Tukey's biweight of its distance to that
     circle (scale from the median distance) and refits (algebraic fit, coordinates about the ray
     origin (ox, oy)). Returns (cx, cy, r, residuals of the chosen points) or None."""
-    K = len(dirs)
     cx, cy = cx - ox, cy - oy
+    # candidates as a [rays with candidates, most candidates] array, NaN-padded
+    rows = [k for k in range(len(dirs)) if cands[k]]
+    if len(rows) < 8:
+        return None
+    width = max(len(cands[k]) for k in rows)
+    rho = np.full((len(rows), width), np.nan)
+    for i, k in enumerate(rows):
+        rho[i, :len(cands[k])] = cands[k]
+    ux, uy = dirs[rows, 0][:, None], dirs[rows, 1][:, None]
+    px, py = rho * ux, rho * uy
     res = []
     for it in range(p["irls_iters"]):
-        xs, ys, res = [], [], []
-        for k in range(K):
-            if not cands[k]:
-                continue
-            ux, uy = float(dirs[k, 0]), float(dirs[k, 1])
-            best, be = 0.0, -1.0
-            for rho in cands[k]:
-                px, py = rho * ux, rho * uy
-                e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
-                if be < 0.0 or abs(e) < be:
-                    best, be, bres = rho, abs(e), e
-            xs.append(best * ux)
-            ys.append(best * uy)
-            res.append(bres)
-        if len(xs) < 8:
-            return None
-        sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(e) for e in res]))
+        # on each ray the candidate nearest the circle (first on ties)
+        e = np.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
+        ae = np.where(np.isnan(e), np.inf, np.abs(e))
+        j = np.argmin(ae, axis=1)
+        idx = np.arange(len(rows))
+        best = rho[idx, j]
+        res = e[idx, j].tolist()
+        xs = (best * ux[:, 0]).tolist()
+        ys = (best * uy[:, 0]).tolist()
+        sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(v) for v in res]))
         cut = p["tukey_c"] * sigma
-        wts = []
-        for e in res:
-            u = e / cut
-            wts.append((1.0 - u * u) * (1.0 - u * u) if -1.0 < u < 1.0 else 0.0)
+        u = np.asarray(res) / cut
+        wts = np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
         fit = _kasa(xs, ys, wts)
         if fit is None:
             return None
