@@ -104,6 +104,11 @@ void board_idle(void)
   wdt_reset();
 }
 
+void board_watchdog_kick(void)
+{
+  wdt_reset();
+}
+
 uint32_t board_millis(void)
 {
   uint8_t s = SREG;
@@ -116,6 +121,7 @@ uint32_t board_millis(void)
 ISR(TIMER2_COMPA_vect)
 {
   millis_count++;
+  limits_tick_isr();   // hard-limit debounce
 }
 
 void board_uart_tx_kick(void)

@@ -14,6 +14,7 @@ void board_irq_disable(void);             // step ISR only: end of the nested se
 void board_uart_tx_kick(void);            // main loop: a byte is queued; enable the TX interrupt
 uint32_t board_millis(void);              // any context: milliseconds since power-up (wraps)
 void board_idle(void);                    // main loop, inside every wait: kicks the watchdog
+void board_watchdog_kick(void);           // main loop: kicks the watchdog, no wait (once per line read)
 uint8_t board_reset_cause_watchdog(void); // main, at boot: 1 when the last reset was the watchdog
 uint8_t board_stack_ok(void);             // main loop: 0 once the stack has grown into static data
 

@@ -51,11 +51,28 @@
 #define STEP_LOW_MIN_CYCLES 64        // minimum low time before the next pulse
 #define MAX_STEP_RATE_HZ 40000UL      // settings are refused above this ($100*$110/60)
 
+// Hard limits act when a switch still reads closed this long after its pin
+// changed: a bouncing contact (or noise on the wires) that opens again is no
+// alarm, e.g. while moving off a switch after '$X'. At the fastest rate
+// (30 deg/s) the stage runs 0.3 deg further into a real hit. (GRBL's optional
+// software debounce waits ~32 ms on the watchdog.)
+#define HARD_LIMIT_DEBOUNCE_MS 10
+
 // Homing, as GRBL: seek, pull off, locate slowly, pull off.
 #define HOMING_AXIS_SEARCH_SCALAR 1.5f  // seek travel = 1.5 x max travel
 #define HOMING_AXIS_LOCATE_SCALAR 5.0f  // locate travel = 5 x pull-off
 #define N_HOMING_LOCATE_CYCLE 1
 #define HOMING_CYCLE_MASK ((1 << X_AXIS) | (1 << Y_AXIS) | (1 << Z_AXIS)) // independent stages home together
+
+// Overrides, as GRBL 1.1h: feed 10..200 % in steps of 10 and 1, rapid 100/50/25 %.
+#define DEFAULT_FEED_OVERRIDE 100
+#define MAX_FEED_RATE_OVERRIDE 200
+#define MIN_FEED_RATE_OVERRIDE 10
+#define FEED_OVERRIDE_COARSE_INCREMENT 10
+#define FEED_OVERRIDE_FINE_INCREMENT 1
+#define DEFAULT_RAPID_OVERRIDE 100
+#define RAPID_OVERRIDE_MEDIUM 50
+#define RAPID_OVERRIDE_LOW 25
 
 // Status report refresh counts for the WCO and Ov fields (GRBL 1.1h values).
 #define REPORT_OVR_REFRESH_BUSY_COUNT 20

@@ -299,7 +299,7 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
     if (bit_istrue(settings.flags, BITFLAG_SOFT_LIMIT_ENABLE) && system_check_travel_limits(xyz))
       return STATUS_TRAVEL_EXCEEDED;
     pl_data.feed_rate = f;
-    pl_data.condition = PL_COND_FLAG_JOG;
+    pl_data.condition = PL_COND_FLAG_JOG | PL_COND_FLAG_NO_FEED_OVERRIDE;
     mc_line(xyz, &pl_data);
     if (sys.state == STATE_IDLE && !sys.abort) {
       if (plan_get_current_block() != NULL) {

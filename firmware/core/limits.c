@@ -26,12 +26,23 @@ uint8_t limits_get_state(void)
   return raw;
 }
 
+static volatile uint8_t debounce_ms;   // a switch closed: look again when this runs out
+
+// 1 when a closed switch now means a hard-limit alarm.
+static uint8_t hard_limit_armed(void)
+{
+  return bit_istrue(settings.flags, BITFLAG_HARD_LIMIT_ENABLE) && sys.state != STATE_ALARM &&
+         sys.state != STATE_HOMING && !sys_rt_exec_alarm && limits_get_state();
+}
+
 void limits_pin_change_isr(void)
 {
-  if (bit_isfalse(settings.flags, BITFLAG_HARD_LIMIT_ENABLE)) return;
-  if (sys.state == STATE_ALARM || sys.state == STATE_HOMING) return;
-  if (sys_rt_exec_alarm) return;
-  if (limits_get_state()) {
+  if (!debounce_ms && hard_limit_armed()) debounce_ms = HARD_LIMIT_DEBOUNCE_MS;
+}
+
+void limits_tick_isr(void)
+{
+  if (debounce_ms && --debounce_ms == 0 && hard_limit_armed()) {
     mc_reset();
     system_set_exec_alarm(EXEC_ALARM_HARD_LIMIT);
   }
@@ -80,7 +91,7 @@ static uint8_t limits_homing_move(uint8_t mask, float distance, float rate, uint
     target[i] += negative ? -distance : distance;
   }
   plan_line_data_t pl_data = {.feed_rate = rate * (n_active > 1 ? 1.7320508f : 1.0f),
-                              .condition = PL_COND_FLAG_SYSTEM_MOTION | PL_COND_FLAG_RAPID_MOTION * 0};
+                              .condition = PL_COND_FLAG_SYSTEM_MOTION | PL_COND_FLAG_NO_FEED_OVERRIDE};
   sys.homing_axis_lock = mask;
   plan_buffer_line(target, &pl_data);
   sys.step_control = STEP_CONTROL_EXECUTE_SYS_MOTION;

@@ -146,7 +146,37 @@ uint8_t plan_get_block_buffer_available(void)
 
 float plan_compute_profile_nominal_speed(const plan_block_t *block)
 {
-  return sqrtf(block->nominal_speed_sqr);
+  // As GRBL: rapids scale by the rapid override, feeds by the feed override
+  // but never past the rapid rate (a rapid's programmed rate is its rapid
+  // rate, and its override at most 100 %); jogs and homing run as asked.
+  uint8_t ovr = 100;
+  if (!(block->condition & PL_COND_FLAG_NO_FEED_OVERRIDE))
+    ovr = (block->condition & PL_COND_FLAG_RAPID_MOTION) ? sys.r_override : sys.f_override;
+  float nominal_speed = block->programmed_rate * (0.01f * ovr);
+  if (nominal_speed > block->rapid_rate) nominal_speed = block->rapid_rate;
+  return nominal_speed > MINIMUM_FEED_RATE ? nominal_speed : MINIMUM_FEED_RATE;
+}
+
+// Entry speed limit from the junction and the nominal speeds on both sides.
+static void plan_compute_profile_parameters(plan_block_t *block, float nominal_speed, float prev_nominal_speed)
+{
+  block->max_entry_speed_sqr = (nominal_speed > prev_nominal_speed) ? prev_nominal_speed * prev_nominal_speed
+                                                                    : nominal_speed * nominal_speed;
+  if (block->max_entry_speed_sqr > block->max_junction_speed_sqr) block->max_entry_speed_sqr = block->max_junction_speed_sqr;
+}
+
+void plan_update_velocity_profile_parameters(void)
+{
+  uint8_t block_index = block_buffer_tail;
+  float prev_nominal_speed = SOME_LARGE_VALUE;   // the executing block keeps its own entry speed
+  while (block_index != block_buffer_head) {
+    plan_block_t *block = &block_buffer[block_index];
+    float nominal_speed = plan_compute_profile_nominal_speed(block);
+    plan_compute_profile_parameters(block, nominal_speed, prev_nominal_speed);
+    prev_nominal_speed = (block->condition & PL_COND_FLAG_SYSTEM_MOTION) ? 0.0f : nominal_speed;
+    block_index = plan_next_block_index(block_index);
+  }
+  pl.previous_nominal_speed = prev_nominal_speed;
 }
 
 void plan_sync_position(void)
@@ -235,10 +265,9 @@ static uint8_t plan_queue_block(const int32_t *delta_steps, float feed_rate, uin
   float accel[N_AXIS];
   for (uint8_t i = 0; i < N_AXIS; i++) accel[i] = settings.acceleration[i] * 3600.0f; // deg/s^2 -> deg/min^2
   block->acceleration = limit_value_by_axis_maximum(accel, unit_vec);
-  float rapid_rate = limit_value_by_axis_maximum(settings.max_rate, unit_vec);
-  float nominal_speed = (condition & PL_COND_FLAG_RAPID_MOTION) ? rapid_rate : min(feed_rate, rapid_rate);
-  if (nominal_speed < MINIMUM_FEED_RATE) nominal_speed = MINIMUM_FEED_RATE;
-  block->nominal_speed_sqr = nominal_speed * nominal_speed;
+  block->rapid_rate = limit_value_by_axis_maximum(settings.max_rate, unit_vec);
+  block->programmed_rate = (condition & PL_COND_FLAG_RAPID_MOTION) ? block->rapid_rate : feed_rate;
+  float nominal_speed = plan_compute_profile_nominal_speed(block);
 
   if (block_buffer_head == block_buffer_tail || (condition & PL_COND_FLAG_SYSTEM_MOTION)) {
     block->entry_speed_sqr = 0.0f;
@@ -263,9 +292,7 @@ static uint8_t plan_queue_block(const int32_t *delta_steps, float feed_rate, uin
     }
   }
 
-  float prev = pl.previous_nominal_speed;
-  block->max_entry_speed_sqr = (nominal_speed > prev) ? prev * prev : block->nominal_speed_sqr;
-  if (block->max_entry_speed_sqr > block->max_junction_speed_sqr) block->max_entry_speed_sqr = block->max_junction_speed_sqr;
+  plan_compute_profile_parameters(block, nominal_speed, pl.previous_nominal_speed);
   if (condition & PL_COND_FLAG_SYSTEM_MOTION) {
     pl.previous_nominal_speed = 0.0f;   // homing moves start and end at rest
     memset(pl.previous_unit_vec, 0, sizeof(pl.previous_unit_vec));
@@ -304,7 +331,8 @@ uint8_t plan_buffer_line(const float *target, const plan_line_data_t *pl_data)
       }
     }
     plan_queue_block(delta, settings.max_rate[0] + settings.max_rate[1] + settings.max_rate[2],
-                     PL_COND_FLAG_BACKLASH | PL_COND_FLAG_RAPID_MOTION | (pl_data->condition & PL_COND_FLAG_JOG));
+                     PL_COND_FLAG_BACKLASH | PL_COND_FLAG_RAPID_MOTION |
+                     (pl_data->condition & (PL_COND_FLAG_JOG | PL_COND_FLAG_NO_FEED_OVERRIDE)));
   }
   for (uint8_t i = 0; i < N_AXIS; i++) {
     delta[i] = target_steps[i] - pl.position[i];

@@ -14,6 +14,7 @@
 #define PL_COND_FLAG_SYSTEM_MOTION (1 << 1)  // homing: not part of the program position
 #define PL_COND_FLAG_BACKLASH (1 << 2)       // backlash take-up: steps not counted in the position
 #define PL_COND_FLAG_JOG (1 << 3)
+#define PL_COND_FLAG_NO_FEED_OVERRIDE (1 << 4) // jog and homing run at the rate asked
 
 typedef struct {
   uint32_t steps[N_AXIS];      // steps per axis, absolute
@@ -23,7 +24,8 @@ typedef struct {
   float entry_speed_sqr;       // (deg/min)^2, planned
   float max_entry_speed_sqr;   // (deg/min)^2, junction and nominal limit
   float max_junction_speed_sqr;
-  float nominal_speed_sqr;     // (deg/min)^2
+  float programmed_rate;       // deg/min: the F word, or the rapid rate (before overrides)
+  float rapid_rate;            // deg/min: the axes' $11x limit along this move
   float acceleration;          // deg/min^2 along the move
   float millimeters;           // degrees left in this move (the name is GRBL's)
 } plan_block_t;
@@ -47,6 +49,7 @@ void plan_get_position(float *position);            // main loop: end of the las
 void plan_set_last_direction(uint8_t axes, uint8_t negative_bits); // main loop (homing): direction the axes last turned, for backlash
 void plan_cycle_reinitialize(void);                 // main loop: after a hold, replan from zero speed
 uint8_t plan_backlash_blocks_needed(const float *target); // main loop: free blocks a move to target needs (1 or 2)
-float plan_compute_profile_nominal_speed(const plan_block_t *block); // prep: deg/min
+float plan_compute_profile_nominal_speed(const plan_block_t *block); // prep: deg/min, overrides applied
+void plan_update_velocity_profile_parameters(void); // main loop: an override changed: new speed limits for every queued block
 
 #endif

@@ -35,6 +35,8 @@ static void protocol_exec_rt_system(void);
 void protocol_init(void)
 {
   memset(&sys, 0, sizeof(sys));
+  sys.f_override = DEFAULT_FEED_OVERRIDE;
+  sys.r_override = DEFAULT_RAPID_OVERRIDE;
   plan_init();
   sys.state = STATE_IDLE;
   if (board_reset_cause_watchdog()) sys_fault = FAULT_WATCHDOG;
@@ -47,6 +49,9 @@ void protocol_reset(void)
   uint8_t prior_state = sys.state;
   memset(&sys, 0, sizeof(sys));
   sys.state = prior_state;
+  sys.f_override = DEFAULT_FEED_OVERRIDE;   // a reset restores them, as GRBL
+  sys.r_override = DEFAULT_RAPID_OVERRIDE;
+  sys_rt_exec_motion_override = 0;
   serial_reset_read_buffer();
   gc_init();
   plan_reset();
@@ -74,11 +79,12 @@ void protocol_reset(void)
     if (alarm_kept && !alarm_by_reset) report_alarm_message(alarm_kept);
     report_feedback_message(MESSAGE_ALARM_LOCK);
     sys.state = STATE_ALARM;
+    alarm_by_reset = 0;
   } else {
-    alarm_kept = 0;
+    alarm_kept = alarm_by_reset = 0;
     sys.state = STATE_IDLE;
+    system_execute_startup();   // $N0, $N1 after the banner, as GRBL (not while locked)
   }
-  alarm_by_reset = 0;
 }
 
 static void protocol_execute_line(void)
@@ -102,6 +108,10 @@ static void protocol_execute_line(void)
 void protocol_process_char(uint8_t c)
 {
   if (c == '\n' || c == '\r') {
+    // A sender that keeps the receive buffer full of short moves the planner
+    // takes at once can keep protocol_poll reading for longer than the
+    // watchdog period without ever waiting: kick it once per line.
+    board_watchdog_kick();
     protocol_execute_realtime();
     if (sys.abort) return;
     protocol_execute_line();
@@ -262,6 +272,33 @@ static void protocol_exec_rt_system(void)
         }
       }
       system_clear_exec_state_flag(EXEC_CYCLE_STOP);
+    }
+  }
+
+  rt_exec = sys_rt_exec_motion_override;
+  if (rt_exec) {
+    uint8_t s = board_irq_save();
+    sys_rt_exec_motion_override = 0;
+    board_irq_restore(s);
+    uint8_t f = sys.f_override;
+    if (rt_exec & EXEC_FEED_OVR_RESET) f = DEFAULT_FEED_OVERRIDE;
+    if (rt_exec & EXEC_FEED_OVR_COARSE_PLUS) f += FEED_OVERRIDE_COARSE_INCREMENT;
+    if (rt_exec & EXEC_FEED_OVR_COARSE_MINUS) f -= FEED_OVERRIDE_COARSE_INCREMENT;
+    if (rt_exec & EXEC_FEED_OVR_FINE_PLUS) f += FEED_OVERRIDE_FINE_INCREMENT;
+    if (rt_exec & EXEC_FEED_OVR_FINE_MINUS) f -= FEED_OVERRIDE_FINE_INCREMENT;
+    f = min(max(f, MIN_FEED_RATE_OVERRIDE), MAX_FEED_RATE_OVERRIDE);   // uint8_t: 200 + 10 still fits
+    uint8_t r = sys.r_override;
+    if (rt_exec & EXEC_RAPID_OVR_RESET) r = DEFAULT_RAPID_OVERRIDE;
+    if (rt_exec & EXEC_RAPID_OVR_MEDIUM) r = RAPID_OVERRIDE_MEDIUM;
+    if (rt_exec & EXEC_RAPID_OVR_LOW) r = RAPID_OVERRIDE_LOW;
+    if (f != sys.f_override || r != sys.r_override) {
+      sys.f_override = f;
+      sys.r_override = r;
+      sys.report_ovr_counter = 0;   // the next status report shows it
+      // New speed limits for the queued moves; the one running slows down
+      // or speeds up from where it is (the segment prep replans it).
+      plan_update_velocity_profile_parameters();
+      plan_cycle_reinitialize();
     }
   }
 

@@ -1,5 +1,7 @@
 // Everything the firmware prints: ok/error, alarms, messages, reports.
 // Line endings are "\r\n" as in GRBL 1.1.
+#include <stddef.h>
+#include <string.h>
 #include "report.h"
 #include "pgmspace.h"
 #include "config.h"
@@ -26,11 +28,10 @@ void printPgmString(const char *s)
 
 void print_uint32(uint32_t n)
 {
-  char buf[10];
-  uint8_t i = 0;
-  if (n == 0) { serial_write('0'); return; }
-  while (n > 0) { buf[i++] = '0' + n % 10; n /= 10; }
-  while (i > 0) serial_write(buf[--i]);
+  // Through printFloat: one digit loop in flash instead of two. Exact below
+  // 2^24, and nothing printed here comes near it (codes, setting numbers and
+  // values, buffer counts, overrides).
+  printFloat((float)n, 0);
 }
 
 void printFloat(float n, uint8_t decimals)
@@ -85,23 +86,29 @@ void report_alarm_message(uint8_t alarm)
   report_eol();
 }
 
+// The [MSG:...] texts by number (MESSAGE_* in report.h, from 1; 6 unused),
+// one string with NUL between them: smaller than a switch of calls.
+static const char feedback_messages[] PROGMEM =
+  "Reset to continue\0"                                   // 1 MESSAGE_CRITICAL_EVENT
+  "'$H'|'$X' to unlock\0"                                 // 2 MESSAGE_ALARM_LOCK
+  "Caution: Unlocked\0"                                   // 3 MESSAGE_ALARM_UNLOCK
+  "Enabled\0"                                             // 4 MESSAGE_ENABLED
+  "Disabled\0"                                            // 5 MESSAGE_DISABLED
+  "\0"                                                    // 6
+  "Check Limits\0"                                        // 7 MESSAGE_CHECK_LIMITS
+  "Pgm End\0"                                             // 8 MESSAGE_PROGRAM_END
+  "Restoring defaults\0"                                  // 9 MESSAGE_RESTORE_DEFAULTS
+  "EEPROM settings failed CRC check, defaults restored\0" // 10 MESSAGE_SETTINGS_CRC
+  "Fault: watchdog reset, drivers disabled\0"             // 11 MESSAGE_FAULT_WATCHDOG
+  "Fault: internal error, drivers disabled\0"             // 12 MESSAGE_FAULT_INTERNAL
+  "Coordinate data failed CRC check, cleared";            // 13 MESSAGE_COORD_CRC
+
 void report_feedback_message(uint8_t message)
 {
+  const char *p = feedback_messages;
+  while (--message) while (pgm_read_byte(p++)) {}
   printPgmString(PSTR("[MSG:"));
-  switch (message) {
-    case MESSAGE_CRITICAL_EVENT: printPgmString(PSTR("Reset to continue")); break;
-    case MESSAGE_ALARM_LOCK: printPgmString(PSTR("'$H'|'$X' to unlock")); break;
-    case MESSAGE_ALARM_UNLOCK: printPgmString(PSTR("Caution: Unlocked")); break;
-    case MESSAGE_ENABLED: printPgmString(PSTR("Enabled")); break;
-    case MESSAGE_DISABLED: printPgmString(PSTR("Disabled")); break;
-    case MESSAGE_CHECK_LIMITS: printPgmString(PSTR("Check Limits")); break;
-    case MESSAGE_PROGRAM_END: printPgmString(PSTR("Pgm End")); break;
-    case MESSAGE_RESTORE_DEFAULTS: printPgmString(PSTR("Restoring defaults")); break;
-    case MESSAGE_SETTINGS_CRC: printPgmString(PSTR("EEPROM settings failed CRC check, defaults restored")); break;
-    case MESSAGE_COORD_CRC: printPgmString(PSTR("Coordinate data failed CRC check, cleared")); break;
-    case MESSAGE_FAULT_WATCHDOG: printPgmString(PSTR("Fault: watchdog reset, drivers disabled")); break;
-    case MESSAGE_FAULT_INTERNAL: printPgmString(PSTR("Fault: internal error, drivers disabled")); break;
-  }
+  printPgmString(p);
   printPgmString(PSTR("]\r\n"));
 }
 
@@ -113,7 +120,7 @@ void report_init_message(void)
 
 void report_grbl_help(void)
 {
-  printPgmString(PSTR("[HLP:$$ $# $G $I $x=val $J=line $C $X $H $HX $HY $HZ $RST= ~ ! ? ctrl-x]\r\n"));
+  printPgmString(PSTR("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $C $X $H $HX $HY $HZ $RST= ~ ! ? ctrl-x]\r\n"));
 }
 
 static void report_setting_u(uint8_t n, uint32_t v)
@@ -136,23 +143,23 @@ static void report_setting_f(uint8_t n, float v)
 
 void report_grbl_settings(void)
 {
-  report_setting_u(0, settings.pulse_microseconds);
-  report_setting_u(1, settings.stepper_idle_lock_time);
-  report_setting_u(2, settings.step_invert_mask);
-  report_setting_u(3, settings.dir_invert_mask);
-  report_setting_u(4, bit_istrue(settings.flags, BITFLAG_INVERT_ST_ENABLE));
-  report_setting_u(5, bit_istrue(settings.flags, BITFLAG_INVERT_LIMIT_PINS));
-  report_setting_u(10, settings.status_report_mask);
-  report_setting_f(11, settings.junction_deviation);
-  report_setting_u(13, 0);
-  report_setting_u(20, bit_istrue(settings.flags, BITFLAG_SOFT_LIMIT_ENABLE));
-  report_setting_u(21, bit_istrue(settings.flags, BITFLAG_HARD_LIMIT_ENABLE));
-  report_setting_u(22, bit_istrue(settings.flags, BITFLAG_HOMING_ENABLE));
-  report_setting_u(23, settings.homing_dir_mask);
-  report_setting_f(24, settings.homing_feed_rate);
-  report_setting_f(25, settings.homing_seek_rate);
-  report_setting_u(26, settings.homing_debounce_delay);
-  report_setting_f(27, settings.homing_pulloff);
+  // '$0'..'$27' from the settings table (a call per setting costs more flash)
+  const uint8_t *base = (const uint8_t *)&settings;
+  for (uint8_t i = 0; i < N_SETTINGS_TABLE; i++) {
+    uint8_t n = pgm_read_byte(&settings_table[i][0]);
+    uint8_t kind = pgm_read_byte(&settings_table[i][1]);
+    uint8_t arg = pgm_read_byte(&settings_table[i][2]);
+    if (kind == SET_FLOAT) {
+      float f;
+      memcpy(&f, base + arg, sizeof(f));
+      report_setting_f(n, f);
+    } else {
+      uint16_t v = base[arg];
+      if (kind == SET_U16) v |= base[arg + 1] << 8;
+      if (kind == SET_FLAG) v = (settings.flags & arg) != 0;
+      report_setting_u(n, v);
+    }
+  }
   const float *groups[5] = {settings.steps_per_deg, settings.max_rate, settings.acceleration,
                             settings.max_travel, settings.backlash};
   for (uint8_t g = 0; g < 5; g++)
@@ -205,6 +212,23 @@ void report_gcode_modes(void)
   printPgmString(PSTR(" M5 M9 T0 F"));
   printFloat(gc_state.feed_rate, 0);
   printPgmString(PSTR(" S0]\r\n"));
+}
+
+void report_startup_line(uint8_t n, const char *line)
+{
+  printPgmString(PSTR("$N"));
+  print_uint32(n);
+  serial_write('=');
+  printString(line);
+  report_eol();
+}
+
+void report_execute_startup_message(const char *line, uint8_t status)
+{
+  serial_write('>');
+  printString(line);
+  serial_write(':');
+  report_status_message(status);
 }
 
 void report_build_info(const char *info)
@@ -283,7 +307,11 @@ void report_realtime_status(void)
   } else {
     sys.report_ovr_counter = (sys.state & (STATE_HOMING | STATE_CYCLE | STATE_HOLD | STATE_JOG))
                                  ? REPORT_OVR_REFRESH_BUSY_COUNT - 1 : REPORT_OVR_REFRESH_IDLE_COUNT - 1;
-    printPgmString(PSTR("|Ov:100,100,100"));
+    printPgmString(PSTR("|Ov:"));
+    print_uint32(sys.f_override);
+    serial_write(',');
+    print_uint32(sys.r_override);
+    printPgmString(PSTR(",100"));   // spindle: none
   }
   printPgmString(PSTR(">\r\n"));
 }

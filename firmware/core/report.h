@@ -30,6 +30,8 @@ void report_grbl_settings(void);                 // main loop: "$N=value" lines
 uint8_t report_ngc_parameters(void);             // main loop: "$#" lines; status code
 void report_gcode_modes(void);                   // main loop: "[GC:...]"
 void report_build_info(const char *info);        // main loop: "$I" lines
+void report_startup_line(uint8_t n, const char *line); // main loop: "$Nn=line"
+void report_execute_startup_message(const char *line, uint8_t status); // main loop: ">line:ok"
 void report_realtime_status(void);               // main loop: "<Idle|MPos:...>"
 
 #endif

@@ -100,8 +100,12 @@ void serial_rx_isr(uint8_t c)
           utf8_c2 = 0;
         }
         // Extended real-time commands; unknown ones are dropped, as GRBL does.
-        if (c == CMD_JOG_CANCEL && sys.state == STATE_JOG)
-          system_set_exec_state_flag(EXEC_MOTION_CANCEL);
+        if (c == CMD_JOG_CANCEL) {
+          if (sys.state == STATE_JOG) system_set_exec_state_flag(EXEC_MOTION_CANCEL);
+        } else if (c >= CMD_FEED_OVR_RESET && c <= CMD_RAPID_OVR_RESET + 2) {
+          // one bit per byte, in the order of the EXEC_*_OVR_* bits
+          sys_rt_exec_motion_override |= 1 << (c - CMD_FEED_OVR_RESET);   // ISR: no other writer runs
+        }
         return;
       }
       uint8_t head = rx_head;

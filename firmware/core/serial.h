@@ -12,6 +12,8 @@
 #define CMD_FEED_HOLD '!'
 #define CMD_SAFETY_DOOR 0x84
 #define CMD_JOG_CANCEL 0x85
+#define CMD_FEED_OVR_RESET 0x90        // 0x90..0x94: feed 100 %, +10, -10, +1, -1
+#define CMD_RAPID_OVR_RESET 0x95       // 0x95..0x97: rapid 100 %, 50 %, 25 %
 
 void serial_init(void);                   // main: empty both buffers
 void serial_write(uint8_t c);             // main loop: queue one byte, waits while the TX buffer is full

@@ -2,6 +2,7 @@
 // GRBL protects each block with an 8-bit additive checksum that misses many
 // errors; here every block carries a CRC-16/CCITT-FALSE, and the settings
 // block also a version byte.
+#include <stddef.h>
 #include <string.h>
 #include "settings.h"
 #include "pgmspace.h"
@@ -33,6 +34,27 @@ static const settings_t settings_defaults PROGMEM = {
   .status_report_mask = 1,
   .homing_dir_mask = 0,
   .flags = 0,
+};
+
+#define SET_AT(field) offsetof(settings_t, field)
+const uint8_t settings_table[N_SETTINGS_TABLE][4] PROGMEM = {
+  {0, SET_U8, SET_AT(pulse_microseconds), 0},      // 3..100
+  {1, SET_U8, SET_AT(stepper_idle_lock_time), 0},  // 0..255
+  {2, SET_U8, SET_AT(step_invert_mask), 7},
+  {3, SET_U8, SET_AT(dir_invert_mask), 7},
+  {4, SET_FLAG, BITFLAG_INVERT_ST_ENABLE, 0},
+  {5, SET_FLAG, BITFLAG_INVERT_LIMIT_PINS, 0},
+  {10, SET_U8, SET_AT(status_report_mask), 3},
+  {11, SET_FLOAT, SET_AT(junction_deviation), 0},
+  {13, SET_FLAG, BITFLAG_REPORT_INCHES, 0},        // inches: never (degrees)
+  {20, SET_FLAG, BITFLAG_SOFT_LIMIT_ENABLE, 0},    // needs homing
+  {21, SET_FLAG, BITFLAG_HARD_LIMIT_ENABLE, 0},
+  {22, SET_FLAG, BITFLAG_HOMING_ENABLE, 0},        // off: soft limits off too
+  {23, SET_U8, SET_AT(homing_dir_mask), 7},
+  {24, SET_FLOAT, SET_AT(homing_feed_rate), 1},
+  {25, SET_FLOAT, SET_AT(homing_seek_rate), 1},
+  {26, SET_U16, SET_AT(homing_debounce_delay), 0},
+  {27, SET_FLOAT, SET_AT(homing_pulloff), 0},
 };
 
 void settings_store_block(uint16_t addr, const void *data, uint16_t size)
@@ -86,23 +108,47 @@ uint8_t settings_read_coord_data(uint8_t index, float *coord)
 
 #define BUILD_INFO_SIZE 41   // 40 characters + NUL
 
+// Text records ($I, $N0, $N1): the string padded with NULs, then a CRC.
+static void store_string(uint16_t addr, const char *line, uint8_t size)
+{
+  char buf[LINE_BUFFER_SIZE];
+  memset(buf, 0, sizeof(buf));
+  strncpy(buf, line, size - 1);
+  settings_store_block(addr, buf, size);
+}
+
+// A bad record reads as empty and is rewritten empty.
+static uint8_t read_string(uint16_t addr, char *line, uint8_t size)
+{
+  if (!settings_load_block(addr, line, size)) {
+    store_string(addr, "", size);
+    line[0] = 0;
+    return 0;
+  }
+  line[size - 1] = 0;
+  return 1;
+}
+
 void settings_store_build_info(const char *line)
 {
-  char buf[BUILD_INFO_SIZE];
-  memset(buf, 0, sizeof(buf));
-  strncpy(buf, line, BUILD_INFO_SIZE - 1);
-  settings_store_block(EEPROM_ADDR_BUILD_INFO, buf, BUILD_INFO_SIZE);
+  store_string(EEPROM_ADDR_BUILD_INFO, line, BUILD_INFO_SIZE);
 }
 
 uint8_t settings_read_build_info(char *line)
 {
-  if (!settings_load_block(EEPROM_ADDR_BUILD_INFO, line, BUILD_INFO_SIZE)) {
-    settings_store_build_info("");
-    line[0] = 0;
-    return 0;
-  }
-  line[BUILD_INFO_SIZE - 1] = 0;
-  return 1;
+  return read_string(EEPROM_ADDR_BUILD_INFO, line, BUILD_INFO_SIZE);
+}
+
+#define STARTUP_ADDR(n) (EEPROM_ADDR_STARTUP_BLOCK + (n) * (LINE_BUFFER_SIZE + 2))
+
+void settings_store_startup_line(uint8_t n, const char *line)
+{
+  store_string(STARTUP_ADDR(n), line, LINE_BUFFER_SIZE);
+}
+
+uint8_t settings_read_startup_line(uint8_t n, char *line)
+{
+  return read_string(STARTUP_ADDR(n), line, LINE_BUFFER_SIZE);
 }
 
 void settings_restore(uint8_t restore_flag)
@@ -116,6 +162,8 @@ void settings_restore(uint8_t restore_flag)
     for (uint8_t i = 0; i < SETTING_INDEX_NCOORD; i++) settings_write_coord_data(i, coord);
   }
   if (restore_flag & SETTINGS_RESTORE_BUILD_INFO) settings_store_build_info("");
+  if (restore_flag & SETTINGS_RESTORE_STARTUP_LINES)
+    for (uint8_t n = 0; n < N_STARTUP_LINE; n++) settings_store_startup_line(n, "");
   settings_apply();
 }
 
@@ -173,39 +221,30 @@ uint8_t settings_store_global_setting(uint8_t parameter, float value)
   } else {
     if (value > 65535.0f) return STATUS_INVALID_STATEMENT;
     uint16_t int_value = (uint16_t)(value + 0.5f);
-    switch (parameter) {
-      case 0:
-        if (int_value < 3) return STATUS_SETTING_STEP_PULSE_MIN;
-        if (int_value > 100) return STATUS_INVALID_STATEMENT;
-        settings.pulse_microseconds = int_value;
-        break;
-      case 1: if (int_value > 255) return STATUS_INVALID_STATEMENT; settings.stepper_idle_lock_time = int_value; break;
-      case 2: settings.step_invert_mask = int_value & 7; break;
-      case 3: settings.dir_invert_mask = int_value & 7; break;
-      case 4: if (int_value) settings.flags |= BITFLAG_INVERT_ST_ENABLE; else settings.flags &= ~BITFLAG_INVERT_ST_ENABLE; break;
-      case 5: if (int_value) settings.flags |= BITFLAG_INVERT_LIMIT_PINS; else settings.flags &= ~BITFLAG_INVERT_LIMIT_PINS; break;
-      case 10: settings.status_report_mask = int_value & 3; break;
-      case 11: settings.junction_deviation = value; break;
-      case 13: if (int_value) return STATUS_SETTING_DISABLED; break;  // inches: never (degrees)
-      case 20:
-        if (int_value) {
-          if (bit_isfalse(settings.flags, BITFLAG_HOMING_ENABLE)) return STATUS_SOFT_LIMIT_ERROR;
-          settings.flags |= BITFLAG_SOFT_LIMIT_ENABLE;
-        } else {
-          settings.flags &= ~BITFLAG_SOFT_LIMIT_ENABLE;
-        }
-        break;
-      case 21: if (int_value) settings.flags |= BITFLAG_HARD_LIMIT_ENABLE; else settings.flags &= ~BITFLAG_HARD_LIMIT_ENABLE; break;
-      case 22:
-        if (int_value) settings.flags |= BITFLAG_HOMING_ENABLE;
-        else settings.flags &= ~(BITFLAG_HOMING_ENABLE | BITFLAG_SOFT_LIMIT_ENABLE);
-        break;
-      case 23: settings.homing_dir_mask = int_value & 7; break;
-      case 24: if (value <= 0.0f) return STATUS_NEGATIVE_VALUE; settings.homing_feed_rate = value; break;
-      case 25: if (value <= 0.0f) return STATUS_NEGATIVE_VALUE; settings.homing_seek_rate = value; break;
-      case 26: settings.homing_debounce_delay = int_value; break;
-      case 27: settings.homing_pulloff = value; break;
-      default: return STATUS_INVALID_STATEMENT;
+    uint8_t i = 0;
+    while (pgm_read_byte(&settings_table[i][0]) != parameter)
+      if (++i == N_SETTINGS_TABLE) return STATUS_INVALID_STATEMENT;
+    uint8_t kind = pgm_read_byte(&settings_table[i][1]);
+    uint8_t arg = pgm_read_byte(&settings_table[i][2]);
+    uint8_t lim = pgm_read_byte(&settings_table[i][3]);
+    uint8_t *field = (uint8_t *)&settings + arg;
+    if (kind == SET_FLOAT) {
+      if (lim && value <= 0.0f) return STATUS_NEGATIVE_VALUE;
+      memcpy(field, &value, sizeof(value));
+    } else if (kind == SET_U16) {
+      memcpy(field, &int_value, sizeof(int_value));
+    } else if (kind == SET_U8) {
+      if (parameter == 0 && int_value < 3) return STATUS_SETTING_STEP_PULSE_MIN;
+      if (int_value > (parameter ? 255 : 100)) {
+        if (!lim) return STATUS_INVALID_STATEMENT;
+      }
+      *field = lim ? (int_value & lim) : int_value;
+    } else if (int_value) {   // SET_FLAG on
+      if (arg == BITFLAG_REPORT_INCHES) return STATUS_SETTING_DISABLED;
+      if (arg == BITFLAG_SOFT_LIMIT_ENABLE && bit_isfalse(settings.flags, BITFLAG_HOMING_ENABLE)) return STATUS_SOFT_LIMIT_ERROR;
+      settings.flags |= arg;
+    } else {                  // SET_FLAG off; homing off takes soft limits with it
+      settings.flags &= ~(arg == BITFLAG_HOMING_ENABLE ? arg | BITFLAG_SOFT_LIMIT_ENABLE : arg);
     }
   }
   settings_write_global();

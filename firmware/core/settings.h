@@ -18,13 +18,17 @@
 #define SETTINGS_RESTORE_DEFAULTS (1 << 0)
 #define SETTINGS_RESTORE_PARAMETERS (1 << 1)
 #define SETTINGS_RESTORE_BUILD_INFO (1 << 2)
+#define SETTINGS_RESTORE_STARTUP_LINES (1 << 3)
 #define SETTINGS_RESTORE_ALL 0xff
 
 // EEPROM layout: [version][settings_t][crc16] at 0, coordinate records
-// (3 floats + crc16) from 128, build info (string + crc16) from 256.
+// (3 floats + crc16) from 128, build info (string + crc16) from 256, the
+// $N0/$N1 startup blocks (line + crc16 each) from 320.
 #define EEPROM_ADDR_GLOBAL 0U
 #define EEPROM_ADDR_PARAMETERS 128U
 #define EEPROM_ADDR_BUILD_INFO 256U
+#define EEPROM_ADDR_STARTUP_BLOCK 320U
+#define N_STARTUP_LINE 2
 #define SETTING_INDEX_G28 N_COORDINATE_SYSTEM
 #define SETTING_INDEX_G30 (N_COORDINATE_SYSTEM + 1)
 #define SETTING_INDEX_NCOORD (N_COORDINATE_SYSTEM + 2)
@@ -49,6 +53,13 @@ typedef struct {
   uint8_t flags;                 // $4 $5 $20 $21 $22 as BITFLAG_*
 } settings_t;
 
+// '$0'..'$27': {number, SET_*, offset in settings_t or flag bit, limit}, in
+// program memory; the limit is the mask of a SET_U8 (0: checked in code) and
+// 1 for a SET_FLOAT that must be above 0.
+enum { SET_U8, SET_U16, SET_FLAG, SET_FLOAT };
+#define N_SETTINGS_TABLE 17
+extern const uint8_t settings_table[N_SETTINGS_TABLE][4];
+
 extern settings_t settings;
 extern uint8_t settings_restored;  // 1 when the last load failed the check (reported after the banner)
 
@@ -59,6 +70,8 @@ uint8_t settings_read_coord_data(uint8_t index, float *coord); // main loop: 1 w
 void settings_write_coord_data(uint8_t index, const float *coord); // main loop
 uint8_t settings_read_build_info(char *line);              // main loop: 1 when the CRC is good
 void settings_store_build_info(const char *line);          // main loop
+uint8_t settings_read_startup_line(uint8_t n, char *line); // main loop: $Nn into line[LINE_BUFFER_SIZE]; 1 when the CRC is good
+void settings_store_startup_line(uint8_t n, const char *line); // main loop
 uint8_t settings_load_block(uint16_t addr, void *data, uint16_t size); // main loop: read + check CRC; 1 when good
 void settings_store_block(uint16_t addr, const void *data, uint16_t size); // main loop: write data + CRC
 void settings_apply(void);                                 // main loop: push step/limit settings to the board

@@ -17,6 +17,7 @@ system_t sys;
 volatile int32_t sys_position[N_AXIS];
 volatile uint8_t sys_rt_exec_state;
 volatile uint8_t sys_rt_exec_alarm;
+volatile uint8_t sys_rt_exec_motion_override;
 uint8_t sys_fault;
 
 void system_set_exec_state_flag(uint8_t mask)
@@ -92,6 +93,18 @@ static uint8_t system_axis_letter(char c)
   return 0xff;
 }
 
+void system_execute_startup(void)
+{
+  char block[LINE_BUFFER_SIZE];
+  for (uint8_t n = 0; n < N_STARTUP_LINE; n++) {
+    if (!settings_read_startup_line(n, block)) {
+      report_status_message(STATUS_SETTING_READ_FAIL);   // as GRBL; the block now reads empty
+    } else if (block[0]) {
+      report_execute_startup_message(block, gc_execute_line(block, 0));
+    }
+  }
+}
+
 uint8_t system_execute_line(char *line)
 {
   uint8_t char_counter = 1;
@@ -152,6 +165,7 @@ uint8_t system_execute_line(char *line)
           if (!sys.abort) {
             sys.state = STATE_IDLE;
             st_go_idle();
+            if (line[2] == 0) system_execute_startup();   // as GRBL: a full homing cycle runs them
           }
           break;
         }
@@ -166,6 +180,24 @@ uint8_t system_execute_line(char *line)
           } else {
             return STATUS_INVALID_STATEMENT;
           }
+          break;
+        case 'N':
+          if (line[2] == 0) {
+            char block[LINE_BUFFER_SIZE];
+            for (uint8_t n = 0; n < N_STARTUP_LINE; n++) {
+              if (!settings_read_startup_line(n, block)) return STATUS_SETTING_READ_FAIL;
+              report_startup_line(n, block);
+            }
+            break;
+          }
+          // Storing runs the block once to check it, as GRBL: not in alarm.
+          if (sys.state != STATE_IDLE) return STATUS_IDLE_ERROR;
+          if (line[2] < '0' || line[2] >= '0' + N_STARTUP_LINE || line[3] != '=') return STATUS_INVALID_STATEMENT;
+          {
+            uint8_t status = gc_execute_line(line + 4, 0);
+            if (status != STATUS_OK) return status;
+          }
+          settings_store_startup_line(line[2] - '0', line + 4);
           break;
         case 'R':
           if (strncmp(line + 2, "ST=", 3) != 0 || line[6] != 0) return STATUS_INVALID_STATEMENT;

@@ -13,6 +13,16 @@
 #define EXEC_RESET         (1 << 4)
 #define EXEC_MOTION_CANCEL (1 << 6)
 
+// sys_rt_exec_motion_override bits (the override real-time bytes)
+#define EXEC_FEED_OVR_RESET        (1 << 0)
+#define EXEC_FEED_OVR_COARSE_PLUS  (1 << 1)
+#define EXEC_FEED_OVR_COARSE_MINUS (1 << 2)
+#define EXEC_FEED_OVR_FINE_PLUS    (1 << 3)
+#define EXEC_FEED_OVR_FINE_MINUS   (1 << 4)
+#define EXEC_RAPID_OVR_RESET       (1 << 5)
+#define EXEC_RAPID_OVR_MEDIUM      (1 << 6)
+#define EXEC_RAPID_OVR_LOW         (1 << 7)
+
 // sys.state: one bit each, as GRBL
 #define STATE_IDLE 0
 #define STATE_ALARM (1 << 0)
@@ -43,12 +53,15 @@ typedef struct {
   uint8_t homing_axis_lock;  // axes still allowed to step while homing (read by the step ISR)
   uint8_t report_wco_counter;
   uint8_t report_ovr_counter;
+  uint8_t f_override;        // feed override, percent (10..200)
+  uint8_t r_override;        // rapid override, percent (100, 50, 25)
 } system_t;
 
 extern system_t sys;
 extern volatile int32_t sys_position[N_AXIS];   // machine position in steps (step ISR writes)
 extern volatile uint8_t sys_rt_exec_state;      // EXEC_* (ISRs set, main loop clears)
 extern volatile uint8_t sys_rt_exec_alarm;      // EXEC_ALARM_* pending (ISRs set)
+extern volatile uint8_t sys_rt_exec_motion_override; // EXEC_*_OVR_* (UART ISR sets, main loop clears)
 extern uint8_t sys_fault;                       // fault code reported after the banner (0 = none)
 
 void system_set_exec_state_flag(uint8_t mask);   // any context: atomically set EXEC_* bits
@@ -56,6 +69,7 @@ void system_clear_exec_state_flag(uint8_t mask); // main loop: atomically clear 
 void system_set_exec_alarm(uint8_t code);        // any context: raise ALARM:code
 void system_clear_exec_alarm(void);              // main loop
 uint8_t system_execute_line(char *line);         // main loop: run a '$' line; returns a status code
+void system_execute_startup(void);               // main loop: run the $N0/$N1 blocks, each answered ">line:ok"
 float system_convert_axis_steps_to_mpos(const int32_t *steps, uint8_t idx); // main loop: steps -> degrees
 void system_convert_array_steps_to_mpos(float *position, const int32_t *steps); // main loop: all axes
 void system_get_position(int32_t *steps);        // main loop: atomic copy of sys_position

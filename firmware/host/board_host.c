@@ -133,6 +133,16 @@ void board_step_timer_stop(void) { timer_on = 0; step_pins = step_idle; }
 uint8_t host_timer_running(void) { return timer_on; }
 
 uint8_t board_limits_read(void) { return limit_levels(); }
+
+void host_set_limit_raw(uint8_t raw)
+{
+  uint8_t before = limit_levels();
+  host_limit_raw = raw;
+  if (limits_irq_on && before != limit_levels()) {
+    limit_change_pending = 1;
+    take_pending_limit_change();
+  }
+}
 void board_limits_irq(uint8_t on) { limits_irq_on = on; }
 
 void host_schedule_byte(uint32_t at_ms, uint8_t c)
@@ -175,7 +185,13 @@ static void host_tick(void)
     }
     deliver_scheduled();
   }
+  irq_off = 1;   // the 1 kHz timer interrupt
+  limits_tick_isr();
+  irq_off = 0;
+  take_pending_limit_change();
 }
+
+void board_watchdog_kick(void) {}
 
 void board_idle(void)
 {

@@ -21,6 +21,7 @@ extern uint8_t host_stack_ok;           // what board_stack_ok reports (0: simul
 extern void (*host_idle_hook)(void);    // tests: called on every board_idle (fuzzer time budget)
 
 void host_reset_board(void);                      // tests: power-on state (EEPROM kept)
+void host_set_limit_raw(uint8_t raw);             // tests: drive the limit pins (a pin change interrupts)
 void host_schedule_byte(uint32_t at_ms, uint8_t c); // tests: a byte "received" at simulated time
 size_t host_output(char *buf, size_t n);          // tests: copy and clear what the firmware sent
 void host_advance_ms(uint32_t ms);                // tests: let time pass (steps run)

@@ -16,6 +16,7 @@
 //   = corrupt ADDR  flip a bit in EEPROM;  = watchdog  the next boot follows a watchdog reset
 //   = stack 0|1   the stack guard reports an overflow (0) or not (1)
 //   = limit AXIS STEPS  the axis' switch closes at motor step STEPS and beyond
+//   = pins MASK   drive the limit pins (bit i = axis i, 1 = open), as a glitch or a bounce would
 //   # comment
 // Every reply line must be matched before the next '>' line.
 #include <stdlib.h>
@@ -135,6 +136,7 @@ static void run_file(const char *path)
     else if (!strcmp(line, "= erase")) h_erase_eeprom();
     else if (!strcmp(line, "= watchdog")) host_watchdog_reset = 1;
     else if (!strncmp(line, "= stack ", 8)) host_stack_ok = (uint8_t)atoi(line + 8);
+    else if (!strncmp(line, "= pins ", 7)) host_set_limit_raw((uint8_t)atoi(line + 7));
     else if (!strncmp(line, "= corrupt ", 10)) host_eeprom[atoi(line + 10)] ^= 0x10;
     else if (!strncmp(line, "= limit ", 8)) {
       int ax; long st;

@@ -80,11 +80,28 @@ static void min_update(uint64_t *slot, uint64_t v)
 		*slot = v;
 }
 
+/* Drive one limit input. The level is also declared to simavr as the pin's
+ * external value: simavr 1.6 otherwise raises an input pin with its pull-up
+ * on to 1 whenever the firmware writes the port register (PORTB also holds
+ * the driver enable), a glitch on a pressed switch that silicon never sees. */
+static void limit_pin(struct stage *s, int axis, int level)
+{
+	avr_ioport_external_t ext = { 0 };
+	uint8_t bit = (uint8_t)(1u << (LIMIT_BIT0 + axis));
+
+	s->limit_levels = (uint8_t)(level ? s->limit_levels | bit : s->limit_levels & ~bit);
+	ext.name = PORT_CHAR(LIMIT_PORT_LETTER);
+	ext.mask = LIMIT_MASK;
+	ext.value = s->limit_levels;
+	avr_ioctl(s->avr, AVR_IOCTL_IOPORT_SET_EXTERNAL(PORT_CHAR(LIMIT_PORT_LETTER)), &ext);
+	avr_raise_irq(s->limit_irq[axis], (uint32_t)level);
+}
+
 static void limit_drive(struct stage *s, struct stage_axis *a, int level)
 {
 	if (a->limit_level_driven != level) {
 		a->limit_level_driven = level;
-		avr_raise_irq(s->limit_irq[a->index], (uint32_t)level);
+		limit_pin(s, a->index, level);
 	}
 }
 
@@ -149,7 +166,7 @@ void stage_sync_limits(struct stage *s)
 			/* a reset clears the pin register but not the IRQ's last
 			 * value, and simavr drops a raise that repeats the value */
 			s->limit_irq[i]->value = (uint32_t)!level;
-			avr_raise_irq(s->limit_irq[i], (uint32_t)level);
+			limit_pin(s, i, level);
 		}
 	}
 }

@@ -55,6 +55,7 @@ struct stage {
 	uint32_t bounce_cycles;		/* between two bounces */
 	struct stage_vector vec[STAGE_VECTORS];
 	avr_irq_t *limit_irq[STAGE_AXES];
+	uint8_t limit_levels;		/* port bits the switches drive (1 = open) */
 	int trap_warned;		/* bit i: warned about timer i */
 	/* longest stretch with interrupts disabled (SREG I clear), ISRs included */
 	uint64_t cli_since;		/* cycle I went clear, 0: I is set */
