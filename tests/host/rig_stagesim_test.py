@@ -152,7 +152,8 @@ def test_poserig_homes_and_reaches_each_pose(sim, tmp_path):
     stagectl(s, "set", 22, 1)                 # homing on
     # A model that judges its estimates; the second pose's frame is one it must flag.
     model = write_judging_model(tmp_path / "model.onnx")
-    cam = FrameServer(tmp_path / "cam.sock", [sphere_frame(shaded=True), sphere_frame(1), sphere_frame(shaded=True)])
+    cam = FrameServer(tmp_path / "cam.sock",
+                      [sphere_frame(shaded=True), sphere_frame(1), sphere_frame(shaded=True)])
     plan = tmp_path / "plan.csv"
     poses = [[1.5, -2.0, 0.5], [-1.0, 0.25, 2.0], [0.0, 0.0, -1.125]]
     plan.write_text("x,y,z\n" + "".join(f"{x},{y},{z}\n" for x, y, z in poses))

@@ -204,7 +204,8 @@ static void test_parse_range(void **state) {
 static void test_report_files(void **state) {
     rig_row rows[3];
     rig_results s;
-    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam", "m.onnx", "test", 3, 2, 1, NULL, 1.5, 100, "2025-01-01T00:00:00Z", NULL, 0};
+    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam", "m.onnx", "test", 3, 2, 1, NULL, 1.5, 100,
+                         "2025-01-01T00:00:00Z", NULL, 0};
     char err[RIG_ERR_LEN], dir[64], path[128], buf[8192];
     FILE *f;
     size_t len;
@@ -361,9 +362,11 @@ static void test_flagged_poses(void **state) {
     assert_non_null(f);
     rig_print_summary(f, &info, &s, rows, 6);
     fclose(f);
-    assert_non_null(strstr(text, "Error analysis of 3 confident pose(s) (degrees; 6 planned, 1 failed, 2 flagged)"));
+    assert_non_null(
+        strstr(text, "Error analysis of 3 confident pose(s) (degrees; 6 planned, 1 failed, 2 flagged)"));
     assert_non_null(strstr(text, "Flagged, left out of the table above: 2 of 5 measured pose(s): 1, 3\n"));
-    assert_non_null(strstr(text, "  pose 1 cmd (1.000, 0.000, 0.000) geodesic 0.400 residual 0.9000: poor alignment"));
+    assert_non_null(
+        strstr(text, "  pose 1 cmd (1.000, 0.000, 0.000) geodesic 0.400 residual 0.9000: poor alignment"));
     assert_non_null(strstr(text, "All 5 measured pose(s), flagged included"));
     /* The first X-axis row is the confident one. */
     assert_non_null(strstr(text, "X-axis          0.333     0.205     0.392     0.600\n"));
