@@ -53,6 +53,8 @@ static void usage(FILE *f) {
           "  --port PATH|auto    stage serial port or pty (default auto: first Arduino by USB VID:PID)\n"
           "  --camera SPEC       /dev/videoN, N, gst:PIPELINE or unix:PATH (libposeinfer)\n"
           "  --model FILE        ONNX model with spherepose metadata\n"
+          "  --camera-file FILE  the camera's JSON file (docs/interfaces.md): expected sphere radius\n"
+          "                      and lens distortion for sphere-crop-v2 models (undistorted first)\n"
           "  --plan FILE         poses, one 'x,y,z' per line in degrees (header line allowed)\n"
           "  --random N          N poses drawn uniformly in the ranges below\n"
           "  --range-x A,B       range of x for --random (default -30,30); also --range-y, --range-z\n"
@@ -202,6 +204,7 @@ static int parse_args(int argc, char **argv, rig_args *a) {
         {"banner-timeout", required_argument, 0, 'b'}, {"timeout", required_argument, 0, 'T'},
         {"poll", required_argument, 0, 'l'},      {"move-timeout", required_argument, 0, 'M'},
         {"allow-default-settings", no_argument, 0, 'D'}, {"no-refine", no_argument, 0, 'R'},
+        {"camera-file", required_argument, 0, 'K'},
         {"verbose", no_argument, 0, 'v'},         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
@@ -259,6 +262,7 @@ static int parse_args(int argc, char **argv, rig_args *a) {
             break;
         case 'D': a->allow_defaults = 1; break;
         case 'R': a->piopt.no_refine = 1; break;
+        case 'K': a->piopt.camera_file = optarg; break;
         case 'v': a->so.log = stderr; break;
         case 'h': usage(stdout); return 0;
         default: usage(stderr); return EXIT_USAGE;
