@@ -35,7 +35,7 @@ def need(path, how):
 class Sim:
     def __init__(self, tmp, args=()):
         self.sock = str(tmp / "state.sock")
-        self.proc = subprocess.Popen([str(STAGESIM), "--state-socket", self.sock, "--eeprom", str(tmp / "e.eep"),
+        self.proc = subprocess.Popen([str(STAGESIM), "--no-auto-reset", "--state-socket", self.sock, "--eeprom", str(tmp / "e.eep"),
                                       *args, str(FIRMWARE)],
                                      stdout=subprocess.PIPE, stderr=open(tmp / "stagesim.err", "w"), text=True)
         first = self.proc.stdout.readline().split()
