@@ -612,8 +612,7 @@ def _consensus(cands, dirs, r, win, step):
 
 
 def _fine(img, dirs, cand, s, p):
-    """Refine a coarse circle: (cx, cy, r, support) or None; support is the fraction of the
-    rays inside the frame with an edge within inlier_px of the circle."""
+    """Refine a coarse circle: (cx, cy, r, support) or None (see _support)."""
     cx, cy, r = cand[:3]
     for ps in range(p["fine_passes"]):
         if ps == 0:
@@ -639,7 +638,7 @@ def _fine(img, dirs, cand, s, p):
 
 def _support(img, dirs, cx, cy, r, p):
     """Fraction of all rays from (cx, cy) that cross an edge within inlier_px of radius r (rays
-    leaving the frame count as without: a circle mostly outside the frame is no sphere)."""
+    leaving the frame count as without: a circle mostly outside the frame is not the sphere)."""
     cands = _ray_edges(img, dirs, cx, cy, r, p["inlier_px"] + 1.0, p)
     n = 0
     for c in cands:
@@ -671,31 +670,29 @@ def _find_sphere_v2(frame, p, camera=None):
     rmin, rmax = radius_range(h, w, p, camera)
     cands, s = _coarse(frame, p, rmin, rmax)
     dirs = _ray_dirs(p["rays"])
-    found = []
-    for c in cands:
-        f = _fine(frame, dirs, c, s, p)
-        if f is not None and f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1:
-            found.append(f)
+    found = [f for f in (_fine(frame, dirs, c, s, p) for c in cands)
+             if f is not None and f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1]
     if not found:
         raise NoSphere("no sphere found in frame")
-    # the best supported circle is the sphere (circles about its centre are its texture);
-    # another well supported one of about its size elsewhere is a second sphere, and which
-    # one to measure is not ours to guess
+    # the best supported circle is the sphere; another well supported one of about its size,
+    # neither centre inside the other circle, is a second sphere, and which one to measure is
+    # not ours to guess
     order = sorted(range(len(found)), key=lambda i: (-found[i][3], i))
     a = found[order[0]]
-    for i in order[1:]:
-        b = found[i]
-        if (a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 < (0.5 * a[2]) ** 2:
-            continue
-        if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]):
-            raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
-                           f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
-    cx, cy, r, _ = a
-    cut = rim_outside(cx, cy, r, h, w)
+    cut = rim_outside(a[0], a[1], a[2], h, w)
     if cut > p["max_cut"]:
         raise NoSphere(f"sphere cut by the frame edge ({100 * cut:.0f} % of its rim outside the frame, "
                        f"at most {100 * p['max_cut']:.0f} %)")
-    return cx, cy, r
+    for b in found:
+        if b is a:
+            continue
+        rr = max(a[2], b[2])
+        if (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) < rr * rr:
+            continue  # a centre inside the other circle: the sphere's own texture or limb
+        if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]):
+            raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
+                           f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
+    return a[:3]
 
 
 # ---- the public steps -----------------------------------------------------------------------

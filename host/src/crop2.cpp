@@ -629,7 +629,8 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     return true;
 }
 
-// Fraction of all rays with an edge candidate within inlier_px of r.
+// Support of a circle (preprocess.py _support): the fraction of all rays
+// with an edge candidate within inlier_px of r.
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r, const pp_params *p,
                RayEdges &re)
 {
@@ -753,31 +754,21 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, &s);
     const std::vector<double> dirs = ray_dirs(p->rays);
     const Frame f = {bgr, stride, w, h};
-    std::vector<Found> found;
+    std::vector<Found> fits;
     for (const Cand &c : cands) {
         Found fo;
         if (fine(f, dirs, c, s, p, &fo) && fo.support >= p->min_support && rmin * 0.9 <= fo.r && fo.r <= rmax * 1.1)
-            found.push_back(fo);
+            fits.push_back(fo);
     }
-    if (found.empty()) {
+    // the best supported circle (first on ties) is the sphere
+    long ia = -1;
+    for (size_t i = 0; i < fits.size(); i++)
+        if (ia < 0 || fits[i].support > fits[(size_t)ia].support) ia = (long)i;
+    if (ia < 0) {
         seterr(err, errlen, "no sphere found in frame");
         return -1;
     }
-    std::vector<size_t> order(found.size());
-    for (size_t i = 0; i < order.size(); i++) order[i] = i;
-    std::stable_sort(order.begin(), order.end(),
-                     [&](size_t a, size_t b) { return found[a].support > found[b].support; });
-    const Found &a = found[order[0]];
-    for (size_t i = 1; i < order.size(); i++) {
-        const Found &b = found[order[i]];
-        if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < (0.5 * a.r) * (0.5 * a.r)) continue;
-        if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r)) {
-            if (err && errlen)
-                snprintf(err, errlen, "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
-                         a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
-            return -1;
-        }
-    }
+    const Found &a = fits[(size_t)ia];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
         if (err && errlen)
@@ -785,6 +776,20 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
                      "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
                      100 * cut, 100 * p->max_cut);
         return -1;
+    }
+    // another well supported circle of about its size, neither centre inside
+    // the other circle: a second sphere
+    for (size_t i = 0; i < fits.size(); i++) {
+        const Found &b = fits[i];
+        if ((long)i == ia) continue;
+        const double rr = std::max(a.r, b.r);
+        if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) continue;
+        if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r)) {
+            if (err && errlen)
+                snprintf(err, errlen, "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
+                         a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
+            return -1;
+        }
     }
     *ocx = a.cx;
     *ocy = a.cy;
