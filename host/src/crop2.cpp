@@ -187,11 +187,16 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
                      &GX[(size_t)i * gw], &GY[(size_t)i * gw]);
     }
     const double emin2 = edge_min * edge_min;
+    e.x.reserve(4096);
+    e.y.reserve(4096);
+    e.gx.reserve(4096);
+    e.gy.reserve(4096);
     for (int i = 0; i < gh; i++) {
+        const int32_t *mrow = &M[(size_t)(i + 1) * P + 1];
         for (int j = 0; j < gw; j++) {
+            if (!((double)mrow[j] >= emin2)) continue;
             const size_t c = (size_t)(i + 1) * P + (j + 1);
             const int64_t m = M[c];
-            if (!((double)m >= emin2)) continue;
             const int64_t gxv = GX[(size_t)i * gw + j], gyv = GY[(size_t)i * gw + j];
             const int64_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
             int64_t a, b;
