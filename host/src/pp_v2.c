@@ -123,6 +123,39 @@ int pp_parse_v2(const json_value *root, pp_params *p, char *err, const char *mod
 static const char *cam_keys[] = {"width", "height", "focal_mm", "pixel_mm", "distance_mm",
                                  "sphere_diameter_mm", "principal_px", "distortion", NULL};
 
+/* As sim/camera.py check_distortion: the lens model must be one-to-one over
+ * the frame (the distorted radius growing along the diagonal, a tenth
+ * beyond the farthest corner), its tangential terms below 10 % there. */
+static int check_distortion(const pp_camera *cam, const char *path, char *err)
+{
+    const double k1 = cam->distortion[0], k2 = cam->distortion[1], p1 = cam->distortion[2],
+                 p2 = cam->distortion[3], k3 = cam->distortion[4];
+    const double u0 = cam->has_principal ? cam->principal[0] : cam->width / 2.0;
+    const double v0 = cam->has_principal ? cam->principal[1] : cam->height / 2.0;
+    const double f = cam->focal_mm / cam->pixel_mm;
+    const double cx[4] = {0, cam->width, 0, cam->width}, cy[4] = {0, 0, cam->height, cam->height};
+    double r_max = 0;
+    for (int i = 0; i < 4; i++) r_max = fmax(r_max, hypot(cx[i] - u0, cy[i] - v0));
+    r_max = r_max / f * 1.1;
+    double prev = 0;
+    for (int i = 1; i < 200; i++) {
+        const double r = r_max * i / 199, r2 = r * r;
+        const double rd = r * (1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2);
+        if (!(rd > prev)) {
+            pi_seterr(err, "camera file %s: key \"distortion\": the radial terms fold the image over within the "
+                      "frame (distorted radius not increasing); not a usable calibration", path);
+            return -1;
+        }
+        prev = rd;
+    }
+    if (r_max > 0 && 2.0 * hypot(p1, p2) * r_max > 0.1) {
+        pi_seterr(err, "camera file %s: key \"distortion\": tangential terms p1, p2 move the frame's corners by "
+                  "more than 10 %%; not a usable calibration", path);
+        return -1;
+    }
+    return 0;
+}
+
 int pp_camera_load(const char *path, pp_camera *cam, char *err)
 {
     unsigned char *buf = NULL;
@@ -204,6 +237,7 @@ int pp_camera_load(const char *path, pp_camera *cam, char *err)
         goto out;
     }
     for (int j = 0; j < 5; j++) cam->distorted |= cam->distortion[j] != 0.0;
+    if (cam->distorted && check_distortion(cam, path, err) < 0) goto out;
     cam->set = 1;
     rc = 0;
 out:

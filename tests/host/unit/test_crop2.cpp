@@ -247,7 +247,9 @@ static void camera_file(void **state)
                             {"{\"width\": 640.5}", "\"width\" must be a whole number"},
                             {"{\"distance_mm\": 20}", "\"distance_mm\" (20) must exceed"},
                             {"[1, 2]", "expected a JSON object"},
-                            {"{\"width\": ", "camera file"}};
+                            {"{\"width\": ", "camera file"},
+                            {"{\"distortion\": [-5.0, 0, 0, 0, 0]}", "fold the image over"},
+                            {"{\"distortion\": [0, 0, 0.2, 0, 0]}", "tangential terms"}};
     for (const auto &b : bad) {
         assert_int_equal(write_file(path, b[0]), 0);
         assert_int_equal(pp_camera_load(path, &cam, err), -1);
