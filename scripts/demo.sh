@@ -13,4 +13,4 @@ scripts/simrig.sh "$OUT" --random "$POSES" --seed "${SEED:-1}" --save-frames
 .venv/bin/python scripts/rig_plots.py "$OUT"
 echo
 echo "demo: done. Per-pose CSV, summary and plots are in $OUT/:"
-echo "  poses.csv  summary.md  boxplot.svg  rig_box.png  rig_panels.png  frames/"
+echo "  poses.csv  summary.md  boxplot.svg  rig_box.png  rig_panels.png  rig_poses.png  frames/"

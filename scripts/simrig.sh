@@ -5,7 +5,9 @@
 # script starts is stopped on exit, on error and on Ctrl-C.
 #
 # usage: scripts/simrig.sh OUT_DIR [poserig options...]
-#   environment: MODEL, TEXTURE, ELF, SEED, VCAM_OPTS (extra `sim vcam` options)
+#   environment: MODEL, TEXTURE, ELF, SEED, VCAM_OPTS (extra `sim vcam` options),
+#   SCENE (rig scene the camera renders, default sim/scenes/rig.json; empty: plain renders),
+#   CAMERA_FILE (the camera file poserig reads, default the scene's: sim/scenes/rig_camera.json)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -16,6 +18,9 @@ fi
 OUT=$1; shift
 
 MODEL=${MODEL:-training/models/Texture_3_color.onnx}
+SCENE=${SCENE-sim/scenes/rig.json}
+CAMERA_FILE=${CAMERA_FILE-sim/scenes/rig_camera.json}
+[ -n "$SCENE" ] || CAMERA_FILE=""
 TEXTURE=${TEXTURE:-build/textures/Texture_3_color.png}
 ELF=${ELF:-firmware/build/spherepose-stage.elf}
 STAGESIM=sim/stage/build/stagesim
@@ -33,6 +38,13 @@ fi
 [ -f "$TEXTURE" ] || { echo "simrig: texture $TEXTURE is missing" >&2; exit 2; }
 
 mkdir -p "$OUT"
+# A simulated board seen for the first time has never stored its settings: it starts on the
+# firmware's defaults (and says so), which is what this rig is meant to run on.
+rig_opts=()
+[ -f "$OUT/eeprom.bin" ] || rig_opts+=(--allow-default-settings)
+[ -z "$CAMERA_FILE" ] || rig_opts+=(--camera-file "$CAMERA_FILE")
+scene_opts=()
+[ -z "$SCENE" ] || scene_opts+=(--scene "$SCENE")
 RUN=$(mktemp -d "${TMPDIR:-/tmp}/simrig.XXXXXX")
 pids=()
 cleanup() {
@@ -69,9 +81,9 @@ wait_line "$RUN/stagesim.out" STATE > /dev/null
 # The camera: renders at the true angles the stage reports.
 # shellcheck disable=SC2086
 "$VCAM" vcam --texture "$TEXTURE" --socket "$RUN/cam.sock" --stage-state "$RUN/state.sock" \
-  --seed "${SEED:-1}" ${VCAM_OPTS:-} > "$RUN/vcam.out" 2> "$OUT/vcam.log" &
+  --seed "${SEED:-1}" "${scene_opts[@]}" ${VCAM_OPTS:-} > "$RUN/vcam.out" 2> "$OUT/vcam.log" &
 pids+=($!)
 wait_line "$RUN/vcam.out" VCAM > /dev/null
 
 echo "simrig: stage on $PTY, camera unix:$RUN/cam.sock" >&2
-"$POSERIG" --port "$PTY" --camera "unix:$RUN/cam.sock" --model "$MODEL" --out "$OUT" "$@"
+"$POSERIG" --port "$PTY" --camera "unix:$RUN/cam.sock" --model "$MODEL" --out "$OUT" "${rig_opts[@]}" "$@"
