@@ -534,13 +534,14 @@ def main(argv=None):
                    "width = 2 x height, e.g. build/textures/Texture_3_color.png)")
     r = sub.add_parser("run", help="network + refinement on frames: one JSON line each, as poseinfer")
     r.add_argument("--model", required=True)
-    r.add_argument("--camera-file", default=None, help="camera JSON (focal length, distortion)")
+    r.add_argument("--camera-file", default=None, help="camera JSON (focal length, distortion); frames "
+                   "whose folder has a truth.jsonl of rig scenes use the camera it gives them")
     r.add_argument("--no-refine", action="store_true", help="the network's angles, residual at them")
     r.add_argument("frames", nargs="+", help="image files or folders")
     c = sub.add_parser("calibrate", help="confidence thresholds from held-out in-range frames "
                        f"(metadata {META_CONFIDENCE})")
     c.add_argument("--model", required=True)
-    c.add_argument("--camera-file", default=None)
+    c.add_argument("--camera-file", default=None, help="as for run")
     c.add_argument("--factor", type=float, default=3.0, help="threshold = factor x 99th percentile")
     c.add_argument("--write", action="store_true", help="store the thresholds in the model file")
     c.add_argument("frames", nargs="+", help="in-range frames the model was not trained on")
@@ -559,15 +560,27 @@ def main(argv=None):
         if args.camera_file:
             from sim.camera import load_camera
             camera = load_camera(args.camera_file)
+        from training.data import frame_cameras
+        from training.preprocess import NoSphere, camera_geometry
         sess = onnx_session(args.model, 1)
-        ref = Refiner(meta, camera)
+        ref, folder_cams = Refiner(meta, None), {}
         rows = []
         for path in _frames(args.frames):
             frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
             if frame is None:
                 print(json.dumps({"file": str(path), "error": "cannot decode image"}), flush=True)
                 continue
-            frame, circle, euler = network_estimate(sess, meta, frame, camera)
+            # a rig scene's frame carries its own camera in its folder's truth.jsonl
+            if path.parent not in folder_cams:
+                folder_cams[path.parent] = frame_cameras(path.parent)
+            cam = folder_cams[path.parent].get(path.name)
+            cam = camera if cam is None else dict(cam, width=frame.shape[1], height=frame.shape[0])
+            ref.focal = None if cam is None else camera_geometry(cam)[1]
+            try:
+                frame, circle, euler = network_estimate(sess, meta, frame, cam)
+            except NoSphere as e:
+                print(json.dumps({"file": str(path), "error": str(e)}), flush=True)
+                continue
             if args.cmd == "run":
                 out = {"file": str(path), **ref(frame, circle, euler, not args.no_refine)}
                 print(json.dumps(out), flush=True)
