@@ -643,6 +643,9 @@ static int setup_refine(pi_ctx *ctx, const char *model, const pi_options *opt, c
     char rerr[PI_ERR_LEN];
     ctx->rf_on = !opt->no_refine;
     ctx->rf_focal = opt->focal_px > 0 ? opt->focal_px : 0;
+    /* the camera file's focal length, when one was given (sphere-crop-v2) */
+    if (!ctx->rf_focal && ctx->pp.cam.set && ctx->pp.cam.pixel_mm > 0)
+        ctx->rf_focal = ctx->pp.cam.focal_mm / ctx->pp.cam.pixel_mm;
     rf_conf_defaults(&ctx->rf_conf);
     if (rf_conf_parse(&ctx->rf_conf, pi_metadata(ctx, RF_META_CONFIDENCE), pi_metadata(ctx, "spherepose.ranges"),
                       rerr, sizeof rerr) < 0) {
