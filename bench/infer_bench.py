@@ -310,6 +310,8 @@ def main(args):
         "- Wall times on this machine mostly measure the other jobs sharing its two CPUs (load average "
         "above); the CPU columns are the ones to compare.",
         "",
+        "The daemon under many clients: [daemon.md](daemon.md).",
+        "",
     ]
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -18,5 +18,8 @@ $PY bench/stage_steprate.py --markdown docs/bench/stage.md | tee build/bench/sta
 echo "=== host: per-frame decode / preprocess / inference, poseinfer vs bare OrtRun vs Python"
 make --no-print-directory -C host bench | tee build/bench/infer.txt
 
+echo "=== host daemon: 50 clients x 20 requests, p50/p99 and RSS (docs/bench/daemon.md)"
+$PY bench/daemon_load.py --markdown build/bench/daemon_load.md | tee build/bench/daemon_load.txt
+
 echo "=== firmware: flash and RAM"
 make --no-print-directory -C firmware size | tee build/bench/firmware_size.txt
