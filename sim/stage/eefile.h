@@ -5,8 +5,8 @@
 
 #include <stdint.h>
 #include "sim_avr.h"
+#include "err.h"	/* ERR_LEN: err[] buffers */
 
-#define ERR_LEN 256
 #define EE_MAX 4096
 
 struct eefile {

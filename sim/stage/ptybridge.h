@@ -13,8 +13,8 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "sim_avr.h"
+#include "err.h"	/* ERR_LEN: err[] buffers */
 
-#define ERR_LEN 256
 #define BRIDGE_RXQ 4096		/* host -> avr bytes read ahead from the pty */
 #define BRIDGE_TXQ 65536	/* avr -> host bytes waiting for the pty */
 

@@ -8,10 +8,10 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "sim_avr.h"
+#include "err.h"	/* ERR_LEN: err[] buffers */
 
 #define STAGE_AXES 3
 #define STAGE_VECTORS 32
-#define ERR_LEN 256
 
 struct stage;
 

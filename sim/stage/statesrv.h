@@ -6,8 +6,8 @@
 
 #include <poll.h>
 #include <stddef.h>
+#include "err.h"	/* ERR_LEN: err[] buffers */
 
-#define ERR_LEN 256
 #define SRV_CLIENTS 16
 #define SRV_LINE 256
 #define SRV_OUT 8192
