@@ -13,6 +13,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include "pi_err.h"
 #include "poseinfer.h"
 
 void config_init(pi_config *c)
@@ -42,13 +43,13 @@ static int add_allow_dir(pi_config *c, const char *v, char *err)
 {
     char **n;
     if (v[0] != '/') {
-        snprintf(err, PI_ERR_LEN, "allow_dir: expected an absolute directory, got \"%.64s\"", v);
+        pi_seterr(err, "allow_dir: expected an absolute directory, got \"%.64s\"", v);
         return -1;
     }
     n = realloc(c->allow_dirs, (size_t)(c->n_allow_dirs + 1) * sizeof *n);
-    if (!n) { snprintf(err, PI_ERR_LEN, "out of memory"); return -1; }
+    if (!n) { pi_seterr(err, "out of memory"); return -1; }
     c->allow_dirs = n;
-    if (!(n[c->n_allow_dirs] = strdup(v))) { snprintf(err, PI_ERR_LEN, "out of memory"); return -1; }
+    if (!(n[c->n_allow_dirs] = strdup(v))) { pi_seterr(err, "out of memory"); return -1; }
     c->n_allow_dirs++;
     return 0;
 }
@@ -61,7 +62,7 @@ static int set_mode(int *dst, const char *key, const char *v, char *err)
     errno = 0;
     n = strtol(v, &end, 8);
     if (errno || end == v || *end != '\0' || n < 0 || n > 0777) {
-        snprintf(err, PI_ERR_LEN, "%s: expected an octal mode such as 0660, got \"%.64s\"", key, v);
+        pi_seterr(err, "%s: expected an octal mode such as 0660, got \"%.64s\"", key, v);
         return -1;
     }
     *dst = (int)n;
@@ -84,7 +85,7 @@ void config_free(pi_config *c)
 static int set_str(char **dst, const char *v, char *err)
 {
     char *s = strdup(v);
-    if (!s) { snprintf(err, PI_ERR_LEN, "out of memory"); return -1; }
+    if (!s) { pi_seterr(err, "out of memory"); return -1; }
     free(*dst);
     *dst = s;
     return 0;
@@ -97,7 +98,7 @@ static int set_long(long *dst, const char *key, const char *v, long lo, long hi,
     errno = 0;
     n = strtol(v, &end, 10);
     if (errno || end == v || *end != '\0' || n < lo || n > hi) {
-        snprintf(err, PI_ERR_LEN, "%s: expected an integer in [%ld, %ld], got \"%.64s\"", key, lo, hi, v);
+        pi_seterr(err, "%s: expected an integer in [%ld, %ld], got \"%.64s\"", key, lo, hi, v);
         return -1;
     }
     *dst = n;
@@ -117,7 +118,7 @@ static int set_bool(int *dst, const char *key, const char *v, char *err)
     if (!strcasecmp(v, "yes") || !strcasecmp(v, "true") || !strcmp(v, "1") || !strcasecmp(v, "on")) *dst = 1;
     else if (!strcasecmp(v, "no") || !strcasecmp(v, "false") || !strcmp(v, "0") || !strcasecmp(v, "off")) *dst = 0;
     else {
-        snprintf(err, PI_ERR_LEN, "%s: expected yes or no, got \"%.64s\"", key, v);
+        pi_seterr(err, "%s: expected yes or no, got \"%.64s\"", key, v);
         return -1;
     }
     return 0;
@@ -151,9 +152,8 @@ int config_set(pi_config *c, const char *key_in, const char *v, char *err)
     if (!strcmp(key, "max_clients")) return set_int(&c->max_clients, key, v, 1, 4096, err);
     if (!strcmp(key, "idle_timeout_ms")) return set_int(&c->idle_timeout_ms, key, v, 100, 86400000, err);
     if (!strcmp(key, "max_file_bytes")) return set_long(&c->max_file_bytes, key, v, 1024, 1L << 31, err);
-    snprintf(err, PI_ERR_LEN,
-             "unknown key \"%.64s\" (the keys: poseinfer --help, and docs/poseinfer.md, \"Config file\")",
-             key_in);
+    pi_seterr(err, "unknown key \"%.64s\" (the keys: poseinfer --help, and docs/poseinfer.md, \"Config file\")",
+              key_in);
     return -1;
 }
 
@@ -174,17 +174,17 @@ static FILE *open_regular(const char *path, char *err)
     FILE *f;
     int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
     if (fd < 0) {
-        snprintf(err, PI_ERR_LEN, "config(%s): %s", path, strerror(errno));
+        pi_seterr(err, "config(%s): %s", path, strerror(errno));
         return NULL;
     }
     if (fstat(fd, &sb) < 0 || !S_ISREG(sb.st_mode)) {
-        snprintf(err, PI_ERR_LEN, "config(%s): not a regular file", path);
+        pi_seterr(err, "config(%s): not a regular file", path);
         close(fd);
         return NULL;
     }
     f = fdopen(fd, "r");
     if (!f) {
-        snprintf(err, PI_ERR_LEN, "config(%s): %s", path, strerror(errno));
+        pi_seterr(err, "config(%s): %s", path, strerror(errno));
         close(fd);
     }
     return f;
@@ -200,26 +200,26 @@ int config_load(pi_config *c, const char *path, char *err)
         char *k, *v, *eq;
         lineno++;
         if (!strchr(line, '\n') && !feof(f)) {
-            snprintf(err, PI_ERR_LEN, "config(%s:%d): line too long", path, lineno);
+            pi_seterr(err, "config(%s:%d): line too long", path, lineno);
             goto fail;
         }
         k = trim(line);
         if (*k == '\0' || *k == '#') continue;
         eq = strchr(k, '=');
         if (!eq) {
-            snprintf(err, PI_ERR_LEN, "config(%s:%d): expected key = value", path, lineno);
+            pi_seterr(err, "config(%s:%d): expected key = value", path, lineno);
             goto fail;
         }
         *eq = '\0';
         k = trim(k);
         v = trim(eq + 1);
         if (config_set(c, k, v, why) < 0) {
-            snprintf(err, PI_ERR_LEN, "config(%.100s:%d): %.130s", path, lineno, why);
+            pi_seterr(err, "config(%.100s:%d): %.130s", path, lineno, why);
             goto fail;
         }
     }
     if (ferror(f)) {
-        snprintf(err, PI_ERR_LEN, "config(%s): read error", path);
+        pi_seterr(err, "config(%s): read error", path);
         goto fail;
     }
     fclose(f);

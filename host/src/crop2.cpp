@@ -14,6 +14,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "kernels.h"
+#include "pi_err.h"
 
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define KERN2_CLONES __attribute__((target_clones("avx2", "default")))
@@ -595,8 +596,8 @@ KERN2_CLONES void bin_indices(const double *rho, const double *ux, const double 
 }
 
 // The (shift, radius) most rays agree on (preprocess.py _consensus): for
-// each shift on the grid, the radius bin of each candidate, then the
-// fullest bin; first in grid order, then bin order, on ties.
+// each shift on the grid, the radius bin of each candidate, then the bin
+// reached by the most rays; first in grid order, then bin order, on ties.
 bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, double win, double step, double *dx,
                double *dy, double *rr)
 {
@@ -605,25 +606,33 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     const double base = r - ((double)W * step + win) - step;
     const long nb = ifloor(2.0 * ((double)W * step + win) / step) + 3;
     std::vector<double> ux, uy, rho;
+    std::vector<int32_t> ray;
     for (int k = 0; k < K; k++) {
         if (!re.ok[(size_t)k]) continue;
         for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++) {
             ux.push_back(dirs[2 * (size_t)k]);
             uy.push_back(dirs[2 * (size_t)k + 1]);
             rho.push_back(re.cand[(size_t)i]);
+            ray.push_back(k);
         }
     }
     const size_t n = rho.size();
     if (n == 0) return false;
     const long G = 2 * W + 1;
-    std::vector<int32_t> hist((size_t)nb), bi(n);
+    std::vector<int32_t> hist((size_t)nb), last((size_t)nb), bi(n);
     long best = 0, bg = -1, bb = 0;
     for (long g = 0; g < G * G; g++) {
         const double DY = (double)(g / G - W) * step, DX = (double)(g % G - W) * step;
         bin_indices(rho.data(), ux.data(), uy.data(), n, DX, DY, base, step, bi.data());
         std::fill(hist.begin(), hist.end(), 0);
+        std::fill(last.begin(), last.end(), -1);
+        // a ray counts once per bin (candidates come in ray order): on a busy
+        // backdrop a few rays with many candidates would otherwise outvote the rim
         for (size_t i = 0; i < n; i++)
-            if (bi[i] >= 0 && bi[i] < nb) hist[(size_t)bi[i]]++;
+            if (bi[i] >= 0 && bi[i] < nb && last[(size_t)bi[i]] != ray[i]) {
+                last[(size_t)bi[i]] = ray[i];
+                hist[(size_t)bi[i]]++;
+            }
         for (long b = 0; b < nb; b++)
             if (hist[(size_t)b] > best) { best = hist[(size_t)b]; bg = g; bb = b; }
     }
@@ -690,11 +699,6 @@ double rim_outside(double cx, double cy, double r, int h, int w)
         if (X < 0 || X > w - 1 || Y < 0 || Y > h - 1) out++;
     }
     return out / 256.0;
-}
-
-void seterr(char *err, size_t len, const char *msg)
-{
-    if (err && len) snprintf(err, len, "%s", msg);
 }
 
 } // namespace
@@ -770,16 +774,14 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     for (size_t i = 0; i < fits.size(); i++)
         if (ia < 0 || fits[i].support > fits[(size_t)ia].support) ia = (long)i;
     if (ia < 0) {
-        seterr(err, errlen, "no sphere found in frame");
+        pi_seterrn(err, errlen, "no sphere found in frame");
         return -1;
     }
     const Found &a = fits[(size_t)ia];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
-        if (err && errlen)
-            snprintf(err, errlen,
-                     "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
-                     100 * cut, 100 * p->max_cut);
+        pi_seterrn(err, errlen, "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
+                   100 * cut, 100 * p->max_cut);
         return -1;
     }
     // another well supported circle of about its size, neither centre inside
@@ -790,9 +792,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         const double rr = std::max(a.r, b.r);
         if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) continue;
         if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r)) {
-            if (err && errlen)
-                snprintf(err, errlen, "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
-                         a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
+            pi_seterrn(err, errlen, "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
+                       a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
             return -1;
         }
     }

@@ -5,6 +5,7 @@
 
 #include <stddef.h>
 
+#include "pi_err.h"   /* pi_seterr: every err message */
 #include "poseinfer.h"
 #include "shim.h"
 
@@ -15,9 +16,6 @@ double pi_now_ms(void);
  * time instead of wall time: for benchmarks on a machine shared with other
  * work, where wall time mostly measures the neighbours. */
 void pi_use_cpu_clock(int on);
-
-/* snprintf into err (PI_ERR_LEN bytes); NULL err is fine. */
-void pi_seterr(char *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 
 /* Parse the spherepose.preprocess JSON over the defaults; `model` names the
  * file in messages. */

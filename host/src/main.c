@@ -146,7 +146,7 @@ static int do_dir(pi_ctx *ctx, const char *dir, const pi_config *cfg, sbuf *s)
     int failed = 0, oom = 0;
     char err[PI_ERR_LEN];
     if (!d) {
-        snprintf(err, sizeof err, "opendir(%s): %s", dir, strerror(errno));
+        pi_seterr(err, "opendir(%s): %s", dir, strerror(errno));
         error_json(s, "file", dir, err);
         print_line(s);
         return 1;
@@ -197,14 +197,14 @@ static int dump_tensor(pi_ctx *ctx, const char *image, const pi_config *cfg, sbu
     int rc = -1;
 
     buf = malloc(n * sizeof(float));
-    if (!buf) { snprintf(err, sizeof err, "dump-tensor: out of memory"); goto fail; }
+    if (!buf) { pi_seterr(err, "dump-tensor: out of memory"); goto fail; }
     if (pi_load_file(ctx, image, &f, err) < 0) goto fail;
     if (pi_preprocess_frame(ctx, &f, buf, n, &r, err) < 0) goto fail;
     out = fopen(cfg->dump_tensor, "wb");
-    if (!out) { snprintf(err, sizeof err, "fopen(%s): %s", cfg->dump_tensor, strerror(errno)); goto fail; }
+    if (!out) { pi_seterr(err, "fopen(%s): %s", cfg->dump_tensor, strerror(errno)); goto fail; }
     if (fwrite(buf, sizeof(float), n, out) != n || fclose(out) != 0) {
         out = NULL;
-        snprintf(err, sizeof err, "write(%s): %s", cfg->dump_tensor, strerror(errno));
+        pi_seterr(err, "write(%s): %s", cfg->dump_tensor, strerror(errno));
         goto fail;
     }
     out = NULL;

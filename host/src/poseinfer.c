@@ -6,7 +6,6 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -66,15 +65,6 @@ double pi_now_ms(void)
     struct timespec ts;
     clock_gettime(pi_clock, &ts);
     return ts.tv_sec * 1e3 + ts.tv_nsec / 1e6;
-}
-
-void pi_seterr(char *err, const char *fmt, ...)
-{
-    va_list ap;
-    if (!err) return;
-    va_start(ap, fmt);
-    vsnprintf(err, PI_ERR_LEN, fmt, ap);
-    va_end(ap);
 }
 
 /* Turn an OrtStatus into "call: message" (one line), and release it. */

@@ -11,6 +11,7 @@
 #define _POSIX_C_SOURCE 200809L
 #include "refine.h"
 #include "json.h"
+#include "pi_err.h"
 
 #include <math.h>
 #include <stdio.h>
@@ -45,11 +46,6 @@ struct rf_work {
 
 static const int rf_iters[RF_LEVELS] = RF_ITERS_INIT;
 static const int rf_strides[RF_LEVELS] = RF_STRIDES_INIT;
-
-static void seterr(char *err, size_t len, const char *msg)
-{
-    if (err && len) snprintf(err, len, "%s", msg);
-}
 
 /* ---- conversions ------------------------------------------------------------ */
 
@@ -151,21 +147,18 @@ static inline void load_px(const rf_image *im, int i, int j, double *out)
 
 rf_texture *rf_texture_new(const rf_image *img, char *err)
 {
-    char msg[160];
     int w = img->width, h = img->height, unit = RF_TEXTURE_WIDTH >> (RF_LEVELS - 1);
     if (w != 2 * h || h < 8) {
-        snprintf(msg, sizeof msg, "texture is %dx%d, expected width = 2 x height", w, h);
-        seterr(err, 160, msg);
+        pi_seterrn(err, RF_TEXTURE_ERR_LEN, "texture is %dx%d, expected width = 2 x height", w, h);
         return NULL;
     }
     if (w % unit || w < RF_TEXTURE_WIDTH) {
-        snprintf(msg, sizeof msg, "texture width %d must be a multiple of %d and at least %d", w, unit,
-                 RF_TEXTURE_WIDTH);
-        seterr(err, 160, msg);
+        pi_seterrn(err, RF_TEXTURE_ERR_LEN, "texture width %d must be a multiple of %d and at least %d", w, unit,
+                   RF_TEXTURE_WIDTH);
         return NULL;
     }
     if (img->channels != 1 && img->channels != 3 && img->channels != 4) {
-        seterr(err, 160, "texture must have 1, 3 or 4 channels");
+        pi_seterrn(err, RF_TEXTURE_ERR_LEN, "texture must have 1, 3 or 4 channels");
         return NULL;
     }
     rf_texture *t = calloc(1, sizeof *t);
@@ -201,7 +194,7 @@ rf_texture *rf_texture_new(const rf_image *img, char *err)
 oom:
     free(full);
     rf_texture_free(t);
-    seterr(err, 160, "texture: out of memory");
+    pi_seterrn(err, RF_TEXTURE_ERR_LEN, "texture: out of memory");
     return NULL;
 }
 
@@ -572,12 +565,12 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
     double *uv, final_sse = 0, final_sst = 0;
     memcpy(R, R0, sizeof R);
     if (!t || !w || !frame || !frame->data || !(r > 2) || !isfinite(cx) || !isfinite(cy) || !isfinite(r)) {
-        seterr(err, errlen, "refine: no texture, frame or circle");
+        pi_seterrn(err, errlen, "refine: no texture, frame or circle");
         return -1;
     }
     int rc = frame_crop(w, frame, cx, cy, r, &x0, &y0);
-    if (rc == -1) { seterr(err, errlen, "refine: out of memory"); return -1; }
-    if (rc == -2) { seterr(err, errlen, "refine: circle outside the frame"); return -1; }
+    if (rc == -1) { pi_seterrn(err, errlen, "refine: out of memory"); return -1; }
+    if (rc == -2) { pi_seterrn(err, errlen, "refine: circle outside the frame"); return -1; }
     cx -= x0;
     cy -= y0;
     for (int lev = RF_LEVELS - 1; lev >= 0 && steps; lev--) {
@@ -585,7 +578,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         double ff = focal_px > 0 ? focal_px * s : 0;
         int li = RF_LEVELS - 1 - lev;
         long np = pixel_set(w, lev, cx * s, cy * s, r * s, rf_strides[li], &uv);
-        if (np < 0) { seterr(err, errlen, "refine: out of memory"); return -1; }
+        if (np < 0) { pi_seterrn(err, errlen, "refine: out of memory"); return -1; }
         if (np < 50) continue;
         if (!rf_iters[li]) continue;
         /* Levenberg-Marquardt (training/refine.py): a step is kept only when it
@@ -632,8 +625,8 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
      * at the final pose (training/refine.py) */
     if (!have_final) {
         long np = pixel_set(w, 0, cx, cy, r, rf_strides[RF_LEVELS - 1], &uv);
-        if (np < 0) { seterr(err, errlen, "refine: out of memory"); return -1; }
-        if (np < 50) { seterr(err, errlen, "refine: circle too small or outside the frame"); return -1; }
+        if (np < 0) { pi_seterrn(err, errlen, "refine: out of memory"); return -1; }
+        if (np < 50) { pi_seterrn(err, errlen, "refine: circle too small or outside the frame"); return -1; }
         evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &final_sse, &final_sst, NULL, NULL);
     }
     out->residual = final_sst > 0 ? final_sse / final_sst : 1.0;
@@ -662,7 +655,7 @@ static int conf_number(const json_value *o, const char *key, double lo, double h
     const json_value *v = json_get(o, key);
     if (!v) return 0;
     if (v->type != JSON_NUMBER || !(v->number >= lo && v->number <= hi)) {
-        if (err) snprintf(err, errlen, "metadata spherepose.confidence: \"%s\" must be a number in [%g, %g]",
+        pi_seterrn(err, errlen, "metadata spherepose.confidence: \"%s\" must be a number in [%g, %g]",
                           key, lo, hi);
         return -1;
     }
@@ -677,11 +670,11 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
     int has_unrefined = 0;
     if (confidence_json) {
         if (json_parse(confidence_json, &root, jerr, sizeof jerr) < 0) {
-            if (err) snprintf(err, errlen, "metadata spherepose.confidence: %s", jerr);
+            pi_seterrn(err, errlen, "metadata spherepose.confidence: %s", jerr);
             return -1;
         }
         int bad = root.type != JSON_OBJECT;
-        if (bad && err) snprintf(err, errlen, "metadata spherepose.confidence: not a JSON object");
+        if (bad) pi_seterrn(err, errlen, "metadata spherepose.confidence: not a JSON object");
         if (!bad) {
             /* without its own threshold the unrefined residual uses the refined one */
             has_unrefined = json_get(&root, "residual_max_unrefined") != NULL;
@@ -696,14 +689,14 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
     if (ranges_json) {
         static const char *names[3] = {"x", "y", "z"};
         if (json_parse(ranges_json, &root, jerr, sizeof jerr) < 0) {
-            if (err) snprintf(err, errlen, "metadata spherepose.ranges: %s", jerr);
+            pi_seterrn(err, errlen, "metadata spherepose.ranges: %s", jerr);
             return -1;
         }
         for (int i = 0; i < 3; i++) {
             const json_value *v = root.type == JSON_OBJECT ? json_get(&root, names[i]) : NULL;
             if (!v || v->type != JSON_ARRAY || v->count != 2 || v->items[0].type != JSON_NUMBER ||
                 v->items[1].type != JSON_NUMBER || !(v->items[0].number <= v->items[1].number)) {
-                if (err) snprintf(err, errlen, "metadata spherepose.ranges: \"%s\" must be [lo, hi] degrees", names[i]);
+                pi_seterrn(err, errlen, "metadata spherepose.ranges: \"%s\" must be [lo, hi] degrees", names[i]);
                 json_free(&root);
                 return -1;
             }

@@ -51,7 +51,8 @@ typedef struct rf_out {
 
 /* Texture from decoded pixels (an equirectangular image, width = 2 x height,
  * width a multiple of RF_TEXTURE_WIDTH / 4 and at least RF_TEXTURE_WIDTH).
- * NULL with err filled when it does not fit. */
+ * NULL with err (RF_TEXTURE_ERR_LEN bytes at least) filled when it does not fit. */
+#define RF_TEXTURE_ERR_LEN 160
 rf_texture *rf_texture_new(const rf_image *img, char *err);
 void rf_texture_free(rf_texture *t);
 

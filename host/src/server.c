@@ -410,8 +410,8 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
         /* Loading a model stalls the daemon; only its own user (or root)
          * may ask, over the unix: socket; others have SIGHUP. */
         if (who->uid < 0 || (who->uid != (long)geteuid() && who->uid != 0)) {
-            snprintf(err, sizeof err, "reload: only the daemon's user (uid %ld) may reload, over the unix: "
-                     "socket, or with SIGHUP (systemctl reload poseinfer)", (long)geteuid());
+            pi_seterr(err, "reload: only the daemon's user (uid %ld) may reload, over the unix: "
+                      "socket, or with SIGHUP (systemctl reload poseinfer)", (long)geteuid());
             error_json(out, NULL, NULL, err);
         } else {
             return to_worker(a, p, job_new(JOB_RELOAD), out);

@@ -3,6 +3,7 @@
 #include "shim.h"
 #include "crop2.h"
 #include "kernels.h"
+#include "pi_err.h"
 
 #include <algorithm>
 #include <climits>
@@ -27,24 +28,25 @@ struct shim_cap {
     std::string spec;
 };
 
+// "call: why" through the one error helper (pi_err.h).
 static void seterr(char *err, const char *call, const char *why)
 {
-    if (err) snprintf(err, PI_ERR_LEN, "%s: %s", call, why);
+    pi_seterr(err, "%s: %s", call, why);
 }
 
 // OpenCV exception text is multi-line ("OpenCV(4.6.0) file:line: error: ...");
 // keep the part after "error: " on one line.
-static void seterr_cv(char *err, const char *call, const cv::Exception &e)
+static std::string cv_message(const cv::Exception &e)
 {
     std::string msg = e.err.empty() ? e.what() : e.err;
     std::replace(msg.begin(), msg.end(), '\n', ' ');
-    seterr(err, call, msg.c_str());
+    return msg;
 }
 
-#define SHIM_CATCH(call)                                                  \
-    catch (const cv::Exception &e) { seterr_cv(err, call, e); }          \
-    catch (const std::bad_alloc &) { seterr(err, call, "out of memory"); } \
-    catch (const std::exception &e) { seterr(err, call, e.what()); }     \
+#define SHIM_CATCH(call)                                                        \
+    catch (const cv::Exception &e) { seterr(err, call, cv_message(e).c_str()); } \
+    catch (const std::bad_alloc &) { seterr(err, call, "out of memory"); }       \
+    catch (const std::exception &e) { seterr(err, call, e.what()); }           \
     catch (...) { seterr(err, call, "unknown C++ exception"); }
 
 extern "C" void pp_defaults(pp_params *p)
@@ -164,14 +166,12 @@ extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pi
 {
     try {
         long w = 0, h = 0;
-        char why[128];
         if (len == 0) { seterr(err, "decode", "empty file"); return -1; }
         if (len > (size_t)INT_MAX) { seterr(err, "decode", "file too large"); return -1; }
         int pr = shim_probe_size((const unsigned char *)buf, len, &w, &h, err);
         if (pr < 0) return -1;
         if (pr == 0 && (double)w * (double)h > (double)max_pixels) {
-            snprintf(why, sizeof why, "image is %ldx%ld, over the limit of %ld pixels", w, h, max_pixels);
-            seterr(err, "decode", why);
+            pi_seterr(err, "decode: image is %ldx%ld, over the limit of %ld pixels", w, h, max_pixels);
             return -1;
         }
         cv::Mat raw(1, (int)len, CV_8U, const_cast<void *>(buf));
@@ -187,8 +187,7 @@ extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pi
             return -1;
         }
         if ((double)m->m.cols * m->m.rows > (double)max_pixels) {
-            snprintf(why, sizeof why, "image is %dx%d, over the limit of %ld pixels", m->m.cols, m->m.rows, max_pixels);
-            seterr(err, "decode", why);
+            pi_seterr(err, "decode: image is %dx%d, over the limit of %ld pixels", m->m.cols, m->m.rows, max_pixels);
             m->m.release();
             return -1;
         }
@@ -269,10 +268,8 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
     const cv::Mat *bgr = &bgr0;
     cv::Mat und;
     if (p->cam.set && (bgr0.cols != p->cam.width || bgr0.rows != p->cam.height)) {
-        char why[160];
-        snprintf(why, sizeof why, "frame is %dx%d, the camera file's calibration is for %dx%d", bgr0.cols,
-                 bgr0.rows, p->cam.width, p->cam.height);
-        seterr(err, "preprocess", why);
+        pi_seterr(err, "preprocess: frame is %dx%d, the camera file's calibration is for %dx%d", bgr0.cols,
+                  bgr0.rows, p->cam.width, p->cam.height);
         return -1;
     }
     if (p->undistort) {
@@ -489,7 +486,7 @@ extern "C" shim_cap *shim_cap_open(const char *spec, char *err)
             return nullptr;
         }
         if (!ok || !c->cap.isOpened()) {
-            if (err) snprintf(err, PI_ERR_LEN, "VideoCapture(%s): cannot open", spec);
+            pi_seterr(err, "VideoCapture(%s): cannot open", spec);
             delete c;
             return nullptr;
         }
@@ -504,7 +501,7 @@ extern "C" int shim_cap_grab(shim_cap *c, pi_frame *out, char *err)
 {
     try {
         if (!c->cap.read(c->frame) || c->frame.empty()) {
-            if (err) snprintf(err, PI_ERR_LEN, "VideoCapture(%s): no frame", c->spec.c_str());
+            pi_seterr(err, "VideoCapture(%s): no frame", c->spec.c_str());
             return -1;
         }
         if (c->frame.depth() != CV_8U) c->frame.convertTo(c->frame, CV_8U);
