@@ -17,8 +17,9 @@ double pi_now_ms(void);
  * work, where wall time mostly measures the neighbours. */
 void pi_use_cpu_clock(int on);
 
-/* Parse the spherepose.preprocess JSON over the defaults; `model` names the
- * file in messages. */
+/* Parse the spherepose.preprocess JSON: its "name" and every key of that
+ * algorithm, each in range (no defaults; a missing key is named in err);
+ * `model` names the file in messages. */
 int pi_parse_preprocess(const char *text, pp_params *p, char *err, const char *model);
 
 /* Files over this many bytes are refused (default PI_DEFAULT_MAX_FILE_BYTES;

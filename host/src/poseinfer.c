@@ -109,11 +109,21 @@ static int load_camera(pi_ctx *ctx, const char *model, const char *path, char *e
 
 /* ---- preprocessing parameters from the metadata JSON --------------------- */
 
+/* A sphere-crop-v1 key the metadata lacks: refused, naming it (the
+ * parameters' one source is training/preprocess.py, whose export writes
+ * every key; the C side fills none). */
+static int pp_missing(const char *key, char *err, const char *model)
+{
+    pi_seterr(err, "pi_open(%s): metadata %s: sphere-crop-v1 needs key \"%s\" (the model's export wrote no "
+              "value for it)", model, META_PREPROCESS, key);
+    return -1;
+}
+
 static int pp_number(const json_value *root, const char *key, double lo, double hi,
                      double *out, char *err, const char *model)
 {
     const json_value *v = json_get(root, key);
-    if (!v) return 0;
+    if (!v) return pp_missing(key, err, model);
     if (v->type != JSON_NUMBER || !(v->number >= lo && v->number <= hi)) {
         pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be a number in [%g, %g]",
                   model, META_PREPROCESS, key, lo, hi);
@@ -127,7 +137,7 @@ static int pp_triple(const json_value *root, const char *key, float out[3], int 
                      char *err, const char *model)
 {
     const json_value *v = json_get(root, key);
-    if (!v) return 0;
+    if (!v) return pp_missing(key, err, model);
     if (v->type != JSON_ARRAY || v->count != 3) goto bad;
     for (int i = 0; i < 3; i++) {
         if (v->items[i].type != JSON_NUMBER) goto bad;
@@ -146,7 +156,8 @@ int pi_parse_preprocess(const char *text, pp_params *p, char *err, const char *m
     json_value root;
     char jerr[128];
     double size;
-    pp_defaults(p);
+    memset(p, 0, sizeof *p);
+    p->version = 1;
     if (json_parse(text, &root, jerr, sizeof jerr) < 0) {
         pi_seterr(err, "pi_open(%s): metadata %s: %s", model, META_PREPROCESS, jerr);
         return -1;
@@ -156,18 +167,22 @@ int pi_parse_preprocess(const char *text, pp_params *p, char *err, const char *m
         goto fail;
     }
     const json_value *name = json_get(&root, "name");
-    if (name && name->type == JSON_STRING && strcmp(name->string, "sphere-crop-v2") == 0) {
+    if (!name) {
+        pi_seterr(err, "pi_open(%s): metadata %s: needs key \"name\" (the preprocessing, \"sphere-crop-v1\" or "
+                  "\"sphere-crop-v2\")", model, META_PREPROCESS);
+        goto fail;
+    }
+    if (name->type == JSON_STRING && strcmp(name->string, "sphere-crop-v2") == 0) {
         int rc = pp_parse_v2(&root, p, err, model);  /* pp_v2.c: every key, no defaults */
         json_free(&root);
         return rc;
     }
-    if (name && (name->type != JSON_STRING || strcmp(name->string, "sphere-crop-v1") != 0)) {
+    if (name->type != JSON_STRING || strcmp(name->string, "sphere-crop-v1") != 0) {
         pi_seterr(err, "pi_open(%s): metadata %s: unknown preprocessing %s; this runtime implements "
                   "\"sphere-crop-v1\" and \"sphere-crop-v2\"",
                   model, META_PREPROCESS, name->type == JSON_STRING ? name->string : "(not a string)");
         goto fail;
     }
-    size = p->size;
     if (pp_number(&root, "size", 8, 2048, &size, err, model) < 0) goto fail;
     if (size != floor(size)) {
         pi_seterr(err, "pi_open(%s): metadata %s: \"size\" must be an integer", model, META_PREPROCESS);

@@ -49,20 +49,6 @@ static std::string cv_message(const cv::Exception &e)
     catch (const std::exception &e) { seterr(err, call, e.what()); }           \
     catch (...) { seterr(err, call, "unknown C++ exception"); }
 
-extern "C" void pp_defaults(pp_params *p)
-{
-    memset(p, 0, sizeof *p);
-    p->version = 1;
-    p->size = 128;
-    p->margin = 1.15;
-    p->fg_threshold = 40;
-    p->border_frac = 0.02;
-    p->close_frac = 0.03;
-    p->min_area_frac = 0.002;
-    p->mean[0] = 0.485f; p->mean[1] = 0.456f; p->mean[2] = 0.406f;
-    p->std[0] = 0.229f; p->std[1] = 0.224f; p->std[2] = 0.225f;
-}
-
 extern "C" shim_mat *shim_mat_new(void)
 {
     try { return new shim_mat(); } catch (...) { return nullptr; }

@@ -50,10 +50,6 @@ typedef struct pp_circle {
     double bg[3];
 } pp_circle;
 
-/* The v1 defaults of docs/interfaces.md (v2 has none: a v2 model's metadata
- * holds every key). */
-void pp_defaults(pp_params *p);
-
 /* The v2 parameters from the metadata object (pp_v2.c): every key present,
  * none unknown, each in its range; errors name the key and the model. */
 struct json_value;

@@ -148,6 +148,31 @@ def test_bad_models(run, models, frames, variant, words):
         assert w in r.stderr, r.stderr
 
 
+def test_v1_model_lacking_a_preprocess_key_is_refused(run, frames, tmp_path):
+    """The C side fills no preprocessing defaults: a sphere-crop-v1 model whose
+    metadata lacks a key (training/preprocess.py DEFAULTS_V1, their one source)
+    is refused, naming the key, as sphere-crop-v2 models are."""
+    import make_model
+    from training import preprocess
+
+    def meta_pp(m):
+        return next(p for p in m.metadata_props if p.key == "spherepose.preprocess")
+
+    # the test models carry every key, as this project's exports always have
+    good = json.loads(meta_pp(make_model.build("good")).value)
+    assert set(good) == set(preprocess.DEFAULTS_V1), good
+    for key in preprocess.DEFAULTS_V1:
+        m = make_model.build("good")
+        pp = json.loads(meta_pp(m).value)
+        del pp[key]
+        meta_pp(m).value = json.dumps(pp, sort_keys=True)
+        path = tmp_path / f"no_{key}.onnx"
+        path.write_bytes(m.SerializeToString())
+        r = run("--model", path, frames["good.png"])
+        assert r.rc == 2 and r.stdout == "", (key, r.rc, r.stdout)
+        assert str(path) in r.stderr and f'"{key}"' in r.stderr, (key, r.stderr)
+
+
 @pytest.mark.valgrind
 def test_missing_model(run, frames, tmp_path):
     m = tmp_path / "missing.onnx"

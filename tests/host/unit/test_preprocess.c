@@ -32,6 +32,20 @@ static uint8_t *disc_frame(int w, int h, double cx, double cy, double r, const u
 
 static const uint8_t BG[3] = {40, 50, 60}, FG[3] = {200, 120, 30};
 
+/* A sphere-crop-v1 parameter set as an export writes it: every key
+ * (training/preprocess.py DEFAULTS_V1; the C side has no defaults). */
+#define V1_KEYS(X) X("size", "128") X("margin", "1.15") X("fg_threshold", "40") X("border_frac", "0.02") \
+    X("close_frac", "0.03") X("min_area_frac", "0.002") X("mean", "[0.485, 0.456, 0.406]")           \
+    X("std", "[0.229, 0.224, 0.225]")
+#define V1_JSON_KEY(k, v) ", \"" k "\": " v
+static const char V1_FULL[] = "{\"name\": \"sphere-crop-v1\"" V1_KEYS(V1_JSON_KEY) "}";
+
+static void v1_params(pp_params *p)
+{
+    char err[PI_ERR_LEN];
+    assert_int_equal(pi_parse_preprocess(V1_FULL, p, err, "m.onnx"), 0);
+}
+
 static void finds_the_disc(void **state)
 {
     pp_params p;
@@ -39,7 +53,7 @@ static void finds_the_disc(void **state)
     char err[PI_ERR_LEN];
     float *out;
     (void)state;
-    pp_defaults(&p);
+    v1_params(&p);
     out = malloc(sizeof(float) * 3 * p.size * p.size);
     uint8_t *img = disc_frame(640, 480, 300, 200, 100, BG, FG);
     pi_frame f = {img, 640, 480, 3, 0, 0};
@@ -65,7 +79,7 @@ static void disc_partly_outside_fills_with_background(void **state)
     pp_circle c;
     char err[PI_ERR_LEN];
     (void)state;
-    pp_defaults(&p);
+    v1_params(&p);
     float *out = malloc(sizeof(float) * 3 * p.size * p.size);
     uint8_t *img = disc_frame(320, 240, 10, 20, 60, BG, FG);
     pi_frame f = {img, 320, 240, 3, 0, 0};
@@ -82,7 +96,7 @@ static void stride_and_channels(void **state)
     pp_circle c1, c2;
     char err[PI_ERR_LEN];
     (void)state;
-    pp_defaults(&p);
+    v1_params(&p);
     size_t n = (size_t)3 * p.size * p.size;
     float *a = malloc(n * sizeof(float)), *b = malloc(n * sizeof(float));
     uint8_t *img = disc_frame(200, 150, 90, 80, 40, BG, FG);
@@ -110,7 +124,7 @@ static void no_sphere(void **state)
     pp_circle c;
     char err[PI_ERR_LEN];
     (void)state;
-    pp_defaults(&p);
+    v1_params(&p);
     float *out = malloc(sizeof(float) * 3 * p.size * p.size);
     uint8_t *img = disc_frame(320, 240, 100, 100, 0, BG, FG);
     pi_frame f = {img, 320, 240, 3, 0, 0};
@@ -200,11 +214,15 @@ static void preprocess_metadata(void **state)
     pp_params p;
     char err[PI_ERR_LEN];
     (void)state;
-    assert_int_equal(pi_parse_preprocess("{}", &p, err, "m.onnx"), 0);
+    assert_int_equal(pi_parse_preprocess(V1_FULL, &p, err, "m.onnx"), 0);
+    assert_int_equal(p.version, 1);
     assert_int_equal(p.size, 128);
-    assert_true(p.margin == 1.15);
-    assert_int_equal(pi_parse_preprocess("{\"name\": \"sphere-crop-v1\", \"size\": 96, \"mean\": [0, 0, 0], "
-                                         "\"std\": [1, 1, 1], \"fg_threshold\": 25.5}", &p, err, "m.onnx"), 0);
+    assert_true(p.margin == 1.15 && p.fg_threshold == 40 && p.min_area_frac == 0.002);
+    assert_true(p.mean[1] == 0.456f && p.std[2] == 0.225f);
+    assert_int_equal(pi_parse_preprocess("{\"name\": \"sphere-crop-v1\", \"size\": 96, \"margin\": 1.15, "
+                                         "\"fg_threshold\": 25.5, \"border_frac\": 0.02, \"close_frac\": 0.03, "
+                                         "\"min_area_frac\": 0.002, \"mean\": [0, 0, 0], \"std\": [1, 1, 1]}",
+                                         &p, err, "m.onnx"), 0);
     assert_int_equal(p.size, 96);
     assert_true(p.std[2] == 1.0f && p.fg_threshold == 25.5);
     static const char *bad[] = {"[]", "{\"name\": \"other\"}", "{\"size\": 96.5}", "{\"size\": 0}",
@@ -212,6 +230,35 @@ static void preprocess_metadata(void **state)
     for (int i = 0; bad[i]; i++) {
         assert_int_equal(pi_parse_preprocess(bad[i], &p, err, "m.onnx"), -1);
         assert_non_null(strstr(err, "pi_open(m.onnx): metadata spherepose.preprocess"));
+    }
+}
+
+/* A v1 model whose metadata lacks a key is refused, naming it: the C side
+ * fills no defaults (one source, training/preprocess.py). */
+static void preprocess_metadata_v1_needs_every_key(void **state)
+{
+    static const char *keys[] = {
+#define V1_NAME(k, v) k,
+        V1_KEYS(V1_NAME)
+#undef V1_NAME
+    };
+    pp_params p;
+    char err[PI_ERR_LEN], want[64];
+    (void)state;
+    assert_int_equal(pi_parse_preprocess("{}", &p, err, "m.onnx"), -1);
+    assert_string_equal(err, "pi_open(m.onnx): metadata spherepose.preprocess: needs key \"name\" (the "
+                             "preprocessing, \"sphere-crop-v1\" or \"sphere-crop-v2\")");
+    for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++) {
+        /* the full set less keys[i] */
+        char json[512] = "{\"name\": \"sphere-crop-v1\"";
+#define V1_ADD(k, v) if (strcmp(k, keys[i])) strcat(json, V1_JSON_KEY(k, v));
+        V1_KEYS(V1_ADD)
+#undef V1_ADD
+        strcat(json, "}");
+        assert_int_equal(pi_parse_preprocess(json, &p, err, "m.onnx"), -1);
+        snprintf(want, sizeof want, "sphere-crop-v1 needs key \"%s\"", keys[i]);
+        assert_non_null(strstr(err, "pi_open(m.onnx): metadata spherepose.preprocess: "));
+        assert_non_null(strstr(err, want));
     }
 }
 
@@ -248,6 +295,7 @@ int main(void)
         cmocka_unit_test(decode_refuses_garbage_and_huge),
         cmocka_unit_test(roundtrip_through_save_and_decode),
         cmocka_unit_test(preprocess_metadata),
+        cmocka_unit_test(preprocess_metadata_v1_needs_every_key),
         cmocka_unit_test(library_argument_checks),
     };
     return cmocka_run_group_tests_name("preprocess", tests, NULL, NULL);
