@@ -21,5 +21,8 @@ make --no-print-directory -C host bench | tee build/bench/infer.txt
 echo "=== host daemon: 50 clients x 20 requests, p50/p99 and RSS (docs/bench/daemon.md)"
 $PY bench/daemon_load.py --markdown build/bench/daemon_load.md | tee build/bench/daemon_load.txt
 
+echo "=== real scenes: the default model on the independent ray-caster's frames (docs/bench/realscene.md)"
+$PY bench/realscene.py --n 100 --seed 0 --out build/bench/realscene --no-progress | tee build/bench/realscene.txt
+
 echo "=== firmware: flash and RAM"
 make --no-print-directory -C firmware size | tee build/bench/firmware_size.txt
