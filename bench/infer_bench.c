@@ -14,9 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "internal.h"
-#include "poseinfer.h"
-#include "shim.h"
+#include "poseinfer.h"   /* the public API only, as any program outside host/ */
 
 static void print_array(const char *name, const double *v, size_t n, int last)
 {
@@ -30,9 +28,6 @@ int main(int argc, char **argv)
     char err[PI_ERR_LEN];
     pi_options o;
     pi_ctx *ctx = NULL;
-    shim_mat *m = NULL;
-    unsigned char *buf = NULL;
-    size_t cap = 0, len = 0;
     int rounds, nimg, rc = 1;
     double *t_run = NULL, *t_dec = NULL, *t_full = NULL, *t_fd = NULL, *t_fp = NULL, *t_fi = NULL, *t_fr = NULL;
 
@@ -55,11 +50,10 @@ int main(int argc, char **argv)
     o.camera_file = camera_file;
     ctx = pi_open(argv[1], &o, err);
     if (!ctx) { fprintf(stderr, "infer_bench: %s\n", err); return 2; }
-    m = shim_mat_new();
     t_run = calloc(n, sizeof(double)); t_dec = calloc(n, sizeof(double));
     t_full = calloc(n, sizeof(double)); t_fd = calloc(n, sizeof(double));
     t_fp = calloc(n, sizeof(double)); t_fi = calloc(n, sizeof(double)); t_fr = calloc(n, sizeof(double));
-    if (!m || !t_run || !t_dec || !t_full || !t_fd || !t_fp || !t_fi || !t_fr) goto fail;
+    if (!t_run || !t_dec || !t_full || !t_fd || !t_fp || !t_fi || !t_fr) goto fail;
 
     /* interleaved, so that a noisy neighbour hits all three alike */
     for (size_t k = 0; k < n; k++) {
@@ -67,8 +61,7 @@ int main(int argc, char **argv)
         pi_frame f;
         pi_result r;
         double t0 = pi_now_ms();
-        if (pi_read_file(path, &buf, &cap, &len, err) < 0 ||
-            shim_decode(m, buf, len, PI_DEFAULT_MAX_PIXELS, &f, err) < 0) goto fail_err;
+        if (pi_load_file(ctx, path, &f, err) < 0) goto fail_err;
         t_dec[k] = pi_now_ms() - t0;
         if (pi_infer_file(ctx, path, &r, err) < 0) goto fail_err;
         t_full[k] = r.total_ms;
@@ -95,8 +88,6 @@ fail_err:
     fprintf(stderr, "infer_bench: %s\n", err);
 fail:
     free(t_run); free(t_dec); free(t_full); free(t_fd); free(t_fp); free(t_fi); free(t_fr);
-    free(buf);
-    shim_mat_free(m);
     pi_close(ctx);
     return rc;
 }

@@ -296,7 +296,7 @@ def main(args):
         "",
         f"- The runtime adds nothing measurable beyond its steps (total / sum of steps = {r_cpu[1]:.2f} CPU).",
         f"- The preprocessing takes {pp_cpu:.2f} ms CPU; the 1.15x target leaves it {0.15 * base_cpu:.2f} ms "
-        "beside the other steps' own overheads. Its image steps are host/src/kernels.cpp (foreground box and "
+        "beside the other steps' own overheads. Its image steps are host/libposeinfer/kernels.cpp (foreground box and "
         "mask, a bit-packed closing, the INTER_AREA reduction; AVX2 where the CPU has it), which give the "
         "same bytes as the OpenCV calls of training/preprocess.py (tests/host/unit/test_kernels.cpp; the "
         "parity test holds the whole chain bit-identical). With those OpenCV calls themselves it took "

@@ -210,7 +210,8 @@ def runtime_identity(poseinfer):
     try:
         head = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True,
                               text=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--", "host/src", "host/include"],
+        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--", "host/libposeinfer",
+                                "host/poseinfer", "host/include"],
                                capture_output=True, text=True, timeout=10).stdout.strip()
         text += f"; tree at {head}" + (", host/ sources with changes not committed" if dirty else "")
     except OSError:

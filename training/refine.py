@@ -1,4 +1,4 @@
-"""Render-and-compare refinement and the confidence of a pose (the reference; host/src/refine.c
+"""Render-and-compare refinement and the confidence of a pose (the reference; host/libposeinfer/refine.c
 implements the same steps in C and is tested against this file).
 
 The model file carries its texture (metadata `spherepose.texture_png`). From the network's pose
@@ -25,7 +25,7 @@ import numpy as np
 META_TEXTURE = "spherepose.texture_png"
 META_CONFIDENCE = "spherepose.confidence"
 
-# The algorithm's parameters: one source, copied into host/src/refine.h (a unit test compares).
+# The algorithm's parameters: one source, copied into host/libposeinfer/refine.h (a unit test compares).
 LEVELS = 3            # frame and texture pyramid levels, coarse to fine (2x2 box reductions)
 ITERS = (4, 2, 1)     # Levenberg-Marquardt steps per level, coarse to fine
 STRIDES = (2, 3, 5)   # sample every STRIDE-th row and column of each level, coarse to fine

@@ -1,8 +1,8 @@
 /* poseinfer.h -- libposeinfer: camera frame -> sphere orientation.
  *
- * Frame (file, memory, camera) -> preprocessing "sphere-crop-v1" (parameters
- * from the model's metadata, docs/interfaces.md) -> ONNX Runtime -> Euler
- * angles (x, y, z) in degrees, R = Rz(z) Ry(y) Rx(x), body to world
+ * Frame (file, memory, camera) -> preprocessing "sphere-crop-v1" or "-v2"
+ * (parameters from the model's metadata, docs/interfaces.md) -> ONNX Runtime
+ * -> Euler angles (x, y, z) in degrees, R = Rz(z) Ry(y) Rx(x), body to world
  * (docs/conventions.md).
  *
  * Conventions of this API:
@@ -133,6 +133,25 @@ void pi_camera_close(pi_camera *cam);
 
 /* Save a raw frame as an image file (format from the extension). */
 int pi_frame_save(const pi_frame *frame, const char *path, char *err);
+
+/* ---- measurement (bench/infer_bench.c) ---------------------------------- */
+
+/* Make pi_now_ms (and so every time in pi_result) measure process CPU time
+ * instead of wall time: for benchmarks on a machine shared with other work,
+ * where wall time mostly measures the neighbours. Process-wide. */
+void pi_use_cpu_clock(int on);
+
+/* The clock of pi_result's times, in milliseconds: monotonic wall time, or
+ * process CPU time after pi_use_cpu_clock(1). */
+double pi_now_ms(void);
+
+/* Read and decode an image file as pi_infer_file does, without inferring.
+ * The frame is held by ctx and stays valid until its next call. */
+int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *frame, char *err);
+
+/* Run the model once on the tensor already in ctx's input buffer (the last
+ * preprocessed frame, or zeros): bare OrtRun, the benchmark's baseline. */
+int pi_run_only(pi_ctx *ctx, char *err);
 
 #ifdef __cplusplus
 }

@@ -206,8 +206,8 @@ def test_calibrate_takes_a_multiple_of_the_99th_percentile():
 
 
 def test_c_parameters_match(tmp_path):
-    """host/src/refine.h copies the algorithm's parameters: they must not drift."""
-    h = (REPO / "host" / "src" / "refine.h").read_text()
+    """host/libposeinfer/refine.h copies the algorithm's parameters: they must not drift."""
+    h = (REPO / "host" / "libposeinfer" / "refine.h").read_text()
 
     def define(name):
         for line in h.splitlines():

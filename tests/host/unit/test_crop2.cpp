@@ -1,4 +1,4 @@
-// Unit tests: sphere-crop-v2 in C++ (host/src/crop2.cpp, pp_v2.c) on
+// Unit tests: sphere-crop-v2 in C++ (host/libposeinfer/crop2.cpp, pp_v2.c) on
 // synthetic frames drawn with OpenCV: the circle with a post and clutter,
 // the errors, the crop's mask, the undistortion map, the parameter and
 // camera-file checks. (Bit-identity with the Python reference is

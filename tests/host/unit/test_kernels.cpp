@@ -1,4 +1,4 @@
-// Unit tests: host/src/kernels.cpp against the OpenCV calls it stands in
+// Unit tests: host/libposeinfer/kernels.cpp against the OpenCV calls it stands in
 // for, byte for byte, on random frames, masks and sizes (fixed seeds).
 #include <csetjmp>
 #include <cstdarg>

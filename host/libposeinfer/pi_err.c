@@ -1,4 +1,4 @@
-/* pi_err.c -- the error helper of host/src (pi_err.h). */
+/* pi_err.c -- the error helper of host/ (pi_err.h). */
 #include "pi_err.h"
 
 #include <stdarg.h>

@@ -634,6 +634,7 @@ int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n
 
 int pi_run_only(pi_ctx *ctx, char *err)
 {
+    if (!ctx) { pi_seterr(err, "pi_run_only: no model"); return -1; }
     return run_model(ctx, err);
 }
 
@@ -864,6 +865,7 @@ fail:
 
 int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err)
 {
+    if (!ctx || !path || !f) { pi_seterr(err, "pi_load_file: no file"); return -1; }
     return pi_load_fd(ctx, -1, path, f, err);
 }
 

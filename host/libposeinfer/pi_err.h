@@ -1,6 +1,7 @@
-/* pi_err.h -- the one error convention of host/src (library and program): a
- * function that fails returns -1 and fills its caller's err buffer with
- * "call: reason" on one line. Every message is written through these two. */
+/* pi_err.h -- the one error convention of libposeinfer/ and poseinfer/ (the
+ * library and the program): a function that fails returns -1 and fills its
+ * caller's err buffer with "call: reason" on one line. Every message is
+ * written through these two. */
 #ifndef PI_ERR_H
 #define PI_ERR_H
 

@@ -1,5 +1,7 @@
-/* internal.h -- shared between the library's C files and the program (not
- * part of the public API). */
+/* internal.h -- shared between the library's files (libposeinfer/) and the
+ * program (poseinfer/), and the unit tests; not part of the public API
+ * (include/poseinfer.h), and included from nowhere outside host/ and
+ * tests/host/unit/. */
 #ifndef PI_INTERNAL_H
 #define PI_INTERNAL_H
 
@@ -8,14 +10,6 @@
 #include "pi_err.h"   /* pi_seterr: every err message */
 #include "poseinfer.h"
 #include "shim.h"
-
-/* Monotonic clock in milliseconds (or process CPU time, see below). */
-double pi_now_ms(void);
-
-/* Make pi_now_ms (and so every timing in pi_result) measure process CPU
- * time instead of wall time: for benchmarks on a machine shared with other
- * work, where wall time mostly measures the neighbours. */
-void pi_use_cpu_clock(int on);
 
 /* Parse the spherepose.preprocess JSON: its "name" and every key of that
  * algorithm, each in range (no defaults; a missing key is named in err);
@@ -39,10 +33,8 @@ int pi_read_fd(int fd, const char *path, unsigned char **buf, size_t *cap, size_
 /* "a FIFO", "a directory", ... for a st_mode that is not a regular file. */
 const char *pi_file_kind(unsigned mode);
 
-/* Read and decode an image file into the context's frame holder. */
-int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err);
-
-/* The same from an open descriptor (fd < 0: open path); fd is closed. */
+/* pi_load_file (poseinfer.h) from an open descriptor (fd < 0: open path);
+ * fd is closed. */
 int pi_load_fd(pi_ctx *ctx, int fd, const char *path, pi_frame *f, char *err);
 
 /* A context that shares base's session, parameters and metadata and has
@@ -61,9 +53,5 @@ int pi_infer_fd(pi_ctx *ctx, int fd, const char *name, pi_result *res, char *err
 
 /* Decode an encoded image into m, timing it into f->decode_ms. */
 int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f, char *err);
-
-/* Run the model once on the tensor already in the context's input buffer
- * (the last preprocessed frame, or zeros): bare OrtRun, for the benchmark. */
-int pi_run_only(pi_ctx *ctx, char *err);
 
 #endif
