@@ -585,8 +585,10 @@ def _solve3(M, v):
 def _consensus(cands, dirs, r, win, step):
     """The circle most rays agree on, near the rays' origin: for each centre shift (dx, dy) on a
     grid of `step` px within +-win, each ray's edge candidates give radii rho - (dx, dy) . u (to
-    first order); the (shift, radius bin of `step` px) holding the most candidates wins (first
-    in grid order, then bin order, on ties). Returns (dx, dy, r) or None."""
+    first order); the (shift, radius bin of `step` px) reached by the most rays wins (first in
+    grid order, then bin order, on ties). A ray counts once per bin however many of its
+    candidates fall in it: on a busy backdrop (a checkerboard, noise) a few rays with many
+    candidates would otherwise outvote the rim. Returns (dx, dy, r) or None."""
     W = int(math.floor(win / step))
     base = r - (W * step + win) - step
     nb = int(math.floor(2.0 * (W * step + win) / step)) + 3
@@ -600,9 +602,11 @@ def _consensus(cands, dirs, r, win, step):
     dot = DX.reshape(-1, 1) * ux[None, :] + DY.reshape(-1, 1) * uy[None, :]
     bi = np.floor(((rho[None, :] - dot) - base) / step).astype(np.int64)
     ok = (bi >= 0) & (bi < nb)
-    G = dot.shape[0]
+    G, K = dot.shape[0], len(dirs)
     flat = (np.arange(G)[:, None] * nb + bi)[ok]
-    hist = np.bincount(flat, minlength=G * nb)
+    ray = np.broadcast_to(np.asarray(ks, np.int64)[None, :], bi.shape)[ok]
+    # one count per (shift, bin, ray)
+    hist = np.bincount(np.unique(flat * K + ray) // K, minlength=G * nb)
     i = int(np.argmax(hist))
     if hist[i] <= 0:
         return None
