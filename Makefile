@@ -1,7 +1,7 @@
 # spherepose: one entry point. The top level delegates to the parts and stops
 # at the first failure. `make demo` and `make test` install what is missing.
 .DELETE_ON_ERROR:
-.PHONY: all deps textures dataset firmware stage host build test demo bench study clean help
+.PHONY: all deps textures dataset firmware stage host build test demo bench study format clean help
 
 VENV    := .venv
 PY      := $(VENV)/bin/python
@@ -17,6 +17,7 @@ help:
 	@echo "make firmware | stage | host    build one part"
 	@echo "make bench    benchmarks (docs/benchmarks.md)"
 	@echo "make study    the six-texture training study (PROFILE=quick|p1)"
+	@echo "make format   clang-format the C and C++ of host/, sim/stage/, bench/, tests/ (.clang-format)"
 	@echo "make clean    remove build outputs"
 
 deps:
@@ -52,6 +53,15 @@ bench: deps build
 PROFILE ?= quick
 study: deps
 	$(VENV)/bin/posetrain study --profile $(PROFILE) --out $(BUILD)/study-$(PROFILE)
+
+# One C style per area: .clang-format at the top for host/, sim/stage/ and the
+# C of bench/ and tests/; firmware/ keeps grbl's layout (its own .clang-format
+# turns the formatter off).
+FORMATTED = $(shell git ls-files 'host/*.c' 'host/*.h' 'host/*.cpp' 'sim/stage/*.c' 'sim/stage/*.h' \
+              'bench/*.c' 'tests/host/*.c' 'tests/host/*.h' 'tests/stage/*.c')
+format:
+	@command -v clang-format >/dev/null || { echo "make format: clang-format is missing (apt-get install clang-format)" >&2; exit 1; }
+	clang-format -i $(FORMATTED)
 
 clean:
 	-$(MAKE) -C firmware clean

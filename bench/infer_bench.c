@@ -14,7 +14,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "poseinfer.h"   /* the public API only, as any program outside host/ */
+#include "poseinfer.h" /* the public API only, as any program outside host/ */
 
 static void print_array(const char *name, const double *v, size_t n, int last)
 {
@@ -29,16 +29,18 @@ int main(int argc, char **argv)
     pi_options o;
     pi_ctx *ctx = NULL;
     int rounds, nimg, rc = 1;
-    double *t_run = NULL, *t_dec = NULL, *t_full = NULL, *t_fd = NULL, *t_fp = NULL, *t_fi = NULL, *t_fr = NULL;
+    double *t_run = NULL, *t_dec = NULL, *t_full = NULL, *t_fd = NULL, *t_fp = NULL, *t_fi = NULL,
+           *t_fr = NULL;
 
     const char *camera_file = NULL;
-    if (argc > 2 && strcmp(argv[1], "--camera-file") == 0) {  /* a sphere-crop-v2 model's camera */
+    if (argc > 2 && strcmp(argv[1], "--camera-file") == 0) { /* a sphere-crop-v2 model's camera */
         camera_file = argv[2];
         argv += 2;
         argc -= 2;
     }
     if (argc < 6) {
-        fprintf(stderr, "usage: infer_bench [--camera-file FILE] MODEL ROUNDS THREADS wall|cpu IMAGE...\n");
+        fprintf(stderr,
+                "usage: infer_bench [--camera-file FILE] MODEL ROUNDS THREADS wall|cpu IMAGE...\n");
         return 2;
     }
     rounds = atoi(argv[2]);
@@ -49,10 +51,17 @@ int main(int argc, char **argv)
     o.intra_threads = atoi(argv[3]);
     o.camera_file = camera_file;
     ctx = pi_open(argv[1], &o, err);
-    if (!ctx) { fprintf(stderr, "infer_bench: %s\n", err); return 2; }
-    t_run = calloc(n, sizeof(double)); t_dec = calloc(n, sizeof(double));
-    t_full = calloc(n, sizeof(double)); t_fd = calloc(n, sizeof(double));
-    t_fp = calloc(n, sizeof(double)); t_fi = calloc(n, sizeof(double)); t_fr = calloc(n, sizeof(double));
+    if (!ctx) {
+        fprintf(stderr, "infer_bench: %s\n", err);
+        return 2;
+    }
+    t_run = calloc(n, sizeof(double));
+    t_dec = calloc(n, sizeof(double));
+    t_full = calloc(n, sizeof(double));
+    t_fd = calloc(n, sizeof(double));
+    t_fp = calloc(n, sizeof(double));
+    t_fi = calloc(n, sizeof(double));
+    t_fr = calloc(n, sizeof(double));
     if (!t_run || !t_dec || !t_full || !t_fd || !t_fp || !t_fi || !t_fr) goto fail;
 
     /* interleaved, so that a noisy neighbour hits all three alike */
@@ -87,7 +96,13 @@ int main(int argc, char **argv)
 fail_err:
     fprintf(stderr, "infer_bench: %s\n", err);
 fail:
-    free(t_run); free(t_dec); free(t_full); free(t_fd); free(t_fp); free(t_fi); free(t_fr);
+    free(t_run);
+    free(t_dec);
+    free(t_full);
+    free(t_fd);
+    free(t_fp);
+    free(t_fi);
+    free(t_fr);
     pi_close(ctx);
     return rc;
 }

@@ -26,7 +26,7 @@ extern "C" {
 #endif
 
 #define PI_API_VERSION 1
-#define PI_ERR_LEN 256
+#define PI_ERR_LEN     256
 
 /* Default limit on decoded frame size (pixels); larger frames are refused. */
 #define PI_DEFAULT_MAX_PIXELS (64L * 1024 * 1024)
@@ -35,36 +35,37 @@ typedef struct pi_ctx pi_ctx;       /* a loaded model, ready to infer */
 typedef struct pi_camera pi_camera; /* an open frame source */
 
 typedef struct pi_options {
-    int intra_threads;  /* ONNX Runtime intra-op threads; 0 = library default (1) */
-    int warmup_runs;    /* inference runs on a dummy tensor at open; default 1 */
-    long max_pixels;    /* refuse frames with more pixels; 0 = PI_DEFAULT_MAX_PIXELS */
-    int no_refine;      /* 1: the network's angles, not refined (the residual still at them) */
-    double focal_px;    /* camera focal length in pixels for refinement; 0 = from the circle */
-    const char *camera_file; /* camera file (docs/interfaces.md) for a sphere-crop-v2 model: expected
+    int intra_threads; /* ONNX Runtime intra-op threads; 0 = library default (1) */
+    int warmup_runs;   /* inference runs on a dummy tensor at open; default 1 */
+    long max_pixels;   /* refuse frames with more pixels; 0 = PI_DEFAULT_MAX_PIXELS */
+    int no_refine;     /* 1: the network's angles, not refined (the residual still at them) */
+    double focal_px;   /* camera focal length in pixels for refinement; 0 = from the circle */
+    const char
+        *camera_file; /* camera file (docs/interfaces.md) for a sphere-crop-v2 model: expected
                                 sphere radius, lens distortion undone before localisation; NULL = none */
 } pi_options;
 
 typedef struct pi_result {
-    double x, y, z;        /* Euler angles, degrees (conventions.md) */
-    double rotmat[3][3];   /* body-to-world R, row-major; valid when has_rotmat */
-    int has_rotmat;        /* 1 when the model has the `rotmat` output */
-    double cx, cy, r;      /* sphere found in the frame (undistorted with a camera file): centre
+    double x, y, z;       /* Euler angles, degrees (conventions.md) */
+    double rotmat[3][3];  /* body-to-world R, row-major; valid when has_rotmat */
+    int has_rotmat;       /* 1 when the model has the `rotmat` output */
+    double cx, cy, r;     /* sphere found in the frame (undistorted with a camera file): centre
                               (OpenCV pixel coordinates, pixel centres at integers) and radius, pixels */
-    int width, height;     /* frame size, pixels */
-    double decode_ms;      /* image decode (0 for raw frames) */
-    double preprocess_ms;  /* find sphere, crop, resize, normalise */
-    double infer_ms;       /* OrtRun */
-    double total_ms;       /* decode + preprocess + infer (+ refine), wall clock */
+    int width, height;    /* frame size, pixels */
+    double decode_ms;     /* image decode (0 for raw frames) */
+    double preprocess_ms; /* find sphere, crop, resize, normalise */
+    double infer_ms;      /* OrtRun */
+    double total_ms;      /* decode + preprocess + infer (+ refine), wall clock */
     /* Refinement and confidence (docs/refine.md). has_confidence is 0 for a
      * model without its texture (spherepose.texture_png): then x, y, z are the
      * network's and nothing below is set. */
     int has_confidence;
-    int confident;         /* 1: residual and pose within the model's thresholds */
-    double residual;       /* unexplained fraction of the frame's variance in the circle */
-    char note[160];        /* why not confident ("" when confident) */
-    int refined;           /* 1: x, y, z (and rotmat) are refined */
-    double net[3];         /* the network's angles */
-    double rcx, rcy, rr;   /* refined circle, continuous pixel coordinates */
+    int confident;       /* 1: residual and pose within the model's thresholds */
+    double residual;     /* unexplained fraction of the frame's variance in the circle */
+    char note[160];      /* why not confident ("" when confident) */
+    int refined;         /* 1: x, y, z (and rotmat) are refined */
+    double net[3];       /* the network's angles */
+    double rcx, rcy, rr; /* refined circle, continuous pixel coordinates */
     double refine_ms;
 } pi_result;
 
@@ -75,7 +76,7 @@ typedef struct pi_frame {
     const uint8_t *data;
     int width, height, channels;
     size_t stride;
-    double decode_ms;      /* time spent decoding it (unix: sources), else 0 */
+    double decode_ms; /* time spent decoding it (unix: sources), else 0 */
 } pi_frame;
 
 /* Fill `o` with the defaults. */
@@ -100,14 +101,14 @@ int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err
 
 /* Convenience: pi_infer_frame on a BGR buffer of width x height, stride bytes
  * per row (0 = width * 3). */
-int pi_infer_bgr(pi_ctx *ctx, const uint8_t *bgr, int width, int height,
-                 size_t stride, pi_result *res, char *err);
+int pi_infer_bgr(pi_ctx *ctx, const uint8_t *bgr, int width, int height, size_t stride,
+                 pi_result *res, char *err);
 
 /* Preprocess only: write the network input (float32, [3, S, S], S =
  * pi_input_size) for a raw frame into `out` (n floats, n >= 3*S*S). For
  * comparing with the Python reference and for tools. */
-int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n,
-                        pi_result *res, char *err);
+int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, pi_result *res,
+                        char *err);
 
 /* Side S of the network input. */
 int pi_input_size(const pi_ctx *ctx);

@@ -18,8 +18,8 @@
 #include "shim.h"
 
 #define CAM_DEFAULT_TIMEOUT_MS 5000
-#define CAM_MAX_FRAME_BYTES (256L * 1024 * 1024)
-#define CAM_MAX_HEADER 512
+#define CAM_MAX_FRAME_BYTES    (256L * 1024 * 1024)
+#define CAM_MAX_HEADER         512
 
 struct pi_camera {
     char *spec;
@@ -127,7 +127,8 @@ static int recv_exact(pi_camera *cam, unsigned char *dst, size_t n, double deadl
             return -1;
         }
         if (r == 0) {
-            pi_seterr(err, "frame server %s: connection closed after %zu of %zu bytes", cam->path, got, n);
+            pi_seterr(err, "frame server %s: connection closed after %zu of %zu bytes", cam->path,
+                      got, n);
             return -1;
         }
         got += (size_t)r;
@@ -194,7 +195,8 @@ static int unix_grab(pi_camera *cam, pi_frame *frame, char *err)
     }
     if (recv_exact(cam, cam->buf, (size_t)n, deadline, err) < 0) goto fail;
     t0 = pi_now_ms();
-    if (shim_decode(cam->mat, cam->buf, (size_t)n, PI_DEFAULT_MAX_PIXELS, frame, err) < 0) return -1;
+    if (shim_decode(cam->mat, cam->buf, (size_t)n, PI_DEFAULT_MAX_PIXELS, frame, err) < 0)
+        return -1;
     frame->decode_ms = pi_now_ms() - t0;
     return 0;
 fail:
@@ -211,16 +213,28 @@ pi_camera *pi_camera_open(const char *spec, int timeout_ms, char *err)
         return NULL;
     }
     cam = calloc(1, sizeof *cam);
-    if (!cam) { pi_seterr(err, "pi_camera_open: out of memory"); return NULL; }
+    if (!cam) {
+        pi_seterr(err, "pi_camera_open: out of memory");
+        return NULL;
+    }
     cam->fd = -1;
     cam->timeout_ms = timeout_ms > 0 ? timeout_ms : CAM_DEFAULT_TIMEOUT_MS;
     cam->spec = strdup(spec);
-    if (!cam->spec) { pi_seterr(err, "pi_camera_open: out of memory"); goto fail; }
+    if (!cam->spec) {
+        pi_seterr(err, "pi_camera_open: out of memory");
+        goto fail;
+    }
     if (strncmp(spec, "unix:", 5) == 0) {
         cam->path = strdup(spec + 5);
         cam->mat = shim_mat_new();
-        if (!cam->path || !cam->mat) { pi_seterr(err, "pi_camera_open: out of memory"); goto fail; }
-        if (!cam->path[0]) { pi_seterr(err, "pi_camera_open(%s): empty socket path", spec); goto fail; }
+        if (!cam->path || !cam->mat) {
+            pi_seterr(err, "pi_camera_open: out of memory");
+            goto fail;
+        }
+        if (!cam->path[0]) {
+            pi_seterr(err, "pi_camera_open(%s): empty socket path", spec);
+            goto fail;
+        }
         if (unix_connect(cam, err) < 0) goto fail;
     } else {
         cam->cap_cv = shim_cap_open(spec, err);
@@ -234,7 +248,10 @@ fail:
 
 int pi_camera_grab(pi_camera *cam, pi_frame *frame, char *err)
 {
-    if (!cam || !frame) { pi_seterr(err, "pi_camera_grab: no camera"); return -1; }
+    if (!cam || !frame) {
+        pi_seterr(err, "pi_camera_grab: no camera");
+        return -1;
+    }
     memset(frame, 0, sizeof *frame);
     if (cam->path) return unix_grab(cam, frame, err);
     return shim_cap_grab(cam->cap_cv, frame, err);

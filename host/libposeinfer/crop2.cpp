@@ -22,10 +22,11 @@
 #define KERN2_CLONES
 #endif
 
+namespace crop2
+{
 
-namespace crop2 {
-
-namespace {
+namespace
+{
 
 // Working memory, kept between frames (per thread): fresh allocations of
 // these sizes cost more in page faults than the work itself.
@@ -92,7 +93,8 @@ KERN2_CLONES void sum_rows(const uint8_t *p, size_t stride, int s, size_t n, int
 }
 
 // Block means of s x s blocks, rounded half up; the remainder dropped.
-void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<int32_t> &red, int *hs, int *ws)
+void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<int32_t> &red,
+            int *hs, int *ws)
 {
     *hs = h / s;
     *ws = w / s;
@@ -125,7 +127,7 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
                 o[3 * X + 1] = quot[(size_t)g];
                 o[3 * X + 2] = quot[(size_t)r];
             } else {
-                o[3 * X] = (b + half) / n;  // non-negative: / floors
+                o[3 * X] = (b + half) / n; // non-negative: / floors
                 o[3 * X + 1] = (g + half) / n;
                 o[3 * X + 2] = (r + half) / n;
             }
@@ -145,8 +147,8 @@ struct Edges {
 // One row of the gradient image: per pixel the channel of the largest
 // magnitude^2 (first on ties) and its gx, gy. Planar loops so that they
 // vectorise; magnitudes^2 fit int32 (|g| <= 4 * 255 * 2).
-KERN2_CLONES void gradient_row(const int32_t *r0, const int32_t *r1, const int32_t *r2, int gw, int32_t *V, int32_t *D,
-                               int32_t *m, int32_t *ox, int32_t *oy)
+KERN2_CLONES void gradient_row(const int32_t *r0, const int32_t *r1, const int32_t *r2, int gw,
+                               int32_t *V, int32_t *D, int32_t *m, int32_t *ox, int32_t *oy)
 {
     const int nb = (gw + 2) * 3;
     for (int k = 0; k < nb; k++) {
@@ -174,7 +176,7 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
 {
     const int gh = hs - 2, gw = ws - 2;
     const size_t P = (size_t)gw + 2;
-    std::vector<int32_t> &M = scratch.M;  // padded magnitude^2
+    std::vector<int32_t> &M = scratch.M; // padded magnitude^2
     fill(M, (size_t)(gh + 2) * P, 0);
     std::vector<int32_t> &GX = scratch.GX, &GY = scratch.GY, &V = scratch.V, &D = scratch.D;
     const size_t nb = (size_t)ws * 3;
@@ -201,10 +203,19 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
             const int64_t gxv = GX[(size_t)i * gw + j], gyv = GY[(size_t)i * gw + j];
             const int64_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
             int64_t a, b;
-            if (5 * ay <= 2 * ax) { a = M[c - 1]; b = M[c + 1]; }
-            else if (5 * ax <= 2 * ay) { a = M[c - P]; b = M[c + P]; }
-            else if ((gxv > 0) == (gyv > 0)) { a = M[c - P - 1]; b = M[c + P + 1]; }
-            else { a = M[c - P + 1]; b = M[c + P - 1]; }
+            if (5 * ay <= 2 * ax) {
+                a = M[c - 1];
+                b = M[c + 1];
+            } else if (5 * ax <= 2 * ay) {
+                a = M[c - P];
+                b = M[c + P];
+            } else if ((gxv > 0) == (gyv > 0)) {
+                a = M[c - P - 1];
+                b = M[c + P + 1];
+            } else {
+                a = M[c - P + 1];
+                b = M[c + P - 1];
+            }
             if (m >= a && m >= b) {
                 e.x.push_back(j + 1);
                 e.y.push_back(i + 1);
@@ -220,7 +231,7 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
 // smoothed 1-2-1. -1 when there is none.
 long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
 {
-    std::vector<long> hist((size_t)(hi - lo + 3), 0);  // padded by one bin each side
+    std::vector<long> hist((size_t)(hi - lo + 3), 0); // padded by one bin each side
     bool any = false;
     for (size_t i = 0; i < e.x.size(); i++) {
         const int64_t dx = e.x[i] - Xc, dy = e.y[i] - Yc, gx = e.gx[i], gy = e.gy[i];
@@ -235,7 +246,10 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
     long best = -1, bi = 0;
     for (long i = 0; i <= hi - lo; i++) {
         const long v = hist[(size_t)i] + 2 * hist[(size_t)i + 1] + hist[(size_t)i + 2];
-        if (v > best) { best = v; bi = i; }
+        if (v > best) {
+            best = v;
+            bi = i;
+        }
     }
     return lo + bi;
 }
@@ -243,8 +257,8 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
 // The cells an edge at (x, y) with unit gradient (ux, uy) votes for at signed
 // radii sr[k]: floor(x - sr ux + 0.5), floor(y - sr uy + 0.5) as Y * ws + X,
 // -1 outside. Its own loop so that it vectorises.
-KERN2_CLONES void vote_cells(const double *sr, int n, double x, double y, double ux, double uy, int ws, int hs,
-                             int32_t *cell)
+KERN2_CLONES void vote_cells(const double *sr, int n, double x, double y, double ux, double uy,
+                             int ws, int hs, int32_t *cell)
 {
     // x, y, sr are within the frame's size (<= 16384 * 2): floor32 is exact
     for (int k = 0; k < n; k++) {
@@ -255,8 +269,8 @@ KERN2_CLONES void vote_cells(const double *sr, int n, double x, double y, double
 }
 
 // Candidate circles, strongest first; *s_out the reduction.
-std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p, double rmin,
-                         double rmax, int *s_out)
+std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
+                         double rmin, double rmax, int *s_out)
 {
     std::vector<Cand> out;
     const int s = std::max(1, std::min(h, w) / p->coarse_size);
@@ -302,7 +316,8 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         }
     for (size_t i = 0; i < e.x.size(); i++) {
         const double gx = e.gx[i], gy = e.gy[i];
-        const double m = std::sqrt((double)((int64_t)e.gx[i] * e.gx[i] + (int64_t)e.gy[i] * e.gy[i]));
+        const double m =
+            std::sqrt((double)((int64_t)e.gx[i] * e.gx[i] + (int64_t)e.gy[i] * e.gy[i]));
         vote_cells(srs.data(), 2 * nr, e.x[i], e.y[i], gx / m, gy / m, ws, hs, cell.data());
         for (int k = 0; k < 2 * nr; k++)
             if (cell[(size_t)k] >= 0) acc[(size_t)boff[(size_t)k] + (size_t)cell[(size_t)k]]++;
@@ -310,9 +325,10 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     // 3 x 3 box sums per bin (zeros outside), then each bin plus the next;
     // per cell its best bin (first on ties). The box sum is linear: it is
     // taken once of each bin plus the next.
-    std::vector<int32_t> &pair = scratch.box, &hsum = scratch.hsum, &vmax = scratch.vmax, &bmax = scratch.bmax;
+    std::vector<int32_t> &pair = scratch.box, &hsum = scratch.hsum, &vmax = scratch.vmax,
+                         &bmax = scratch.bmax;
     pair.resize(plane);
-    fill(hsum, (size_t)(hs + 2) * ws, 0);  // horizontal 3-sums, a zero row each side
+    fill(hsum, (size_t)(hs + 2) * ws, 0); // horizontal 3-sums, a zero row each side
     fill(vmax, plane, -1);
     fill(bmax, plane, 0);
     for (int b = 0; b < nb; b++) {
@@ -347,12 +363,16 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         size_t ci = 0;
         int32_t v = vmax[0];
         for (size_t c = 1; c < plane; c++)
-            if (vmax[c] > v) { v = vmax[c]; ci = c; }
+            if (vmax[c] > v) {
+                v = vmax[c];
+                ci = c;
+            }
         if (v <= 0 || (best >= 0 && (double)v < p->cand_frac * (double)best)) break;
         if (best < 0) best = v;
         const long Yc = (long)(ci / ws), Xc = (long)(ci % ws);
         const int b = bmax[ci];
-        const long r_s = radius_vote(e, Xc, Yc, start[(size_t)b], start[(size_t)std::min(b + 2, nb)] - 1);
+        const long r_s =
+            radius_vote(e, Xc, Yc, start[(size_t)b], start[(size_t)std::min(b + 2, nb)] - 1);
         if (r_s >= 0) {
             const double off = (s - 1) / 2.0;
             out.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
@@ -393,8 +413,9 @@ inline bool sample(const Frame &f, double X, double Y, double v[3])
 }
 
 // Bilinear interpolation, preprocess.py _sample's operations and order.
-KERN2_CLONES void bilinear(const int32_t *q00, const int32_t *q01, const int32_t *q10, const int32_t *q11,
-                           const double *fx, const double *fy, size_t n, double *v)
+KERN2_CLONES void bilinear(const int32_t *q00, const int32_t *q01, const int32_t *q10,
+                           const int32_t *q11, const double *fx, const double *fy, size_t n,
+                           double *v)
 {
     for (size_t j = 0; j < n; j++) {
         const double p00 = q00[j], p01 = q01[j], p10 = q10[j], p11 = q11[j];
@@ -410,7 +431,8 @@ KERN2_CLONES void step_score(const double *v, size_t ns, double *score)
 {
     const double *b = v, *g = v + ns, *r = v + 2 * ns;
     for (size_t i = 0; i + 2 < ns; i++) {
-        const double d0 = std::fabs(b[i + 2] - b[i]), d1 = std::fabs(g[i + 2] - g[i]), d2 = std::fabs(r[i + 2] - r[i]);
+        const double d0 = std::fabs(b[i + 2] - b[i]), d1 = std::fabs(g[i + 2] - g[i]),
+                     d2 = std::fabs(r[i + 2] - r[i]);
         score[i] = std::max(std::max(d0, d1), d2);
     }
 }
@@ -423,8 +445,8 @@ struct RayEdges {
     std::vector<double> cand;
 };
 
-void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r, double win,
-               double thr, RayEdges &re)
+void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
+               double win, double thr, RayEdges &re)
 {
     const int K = (int)dirs.size() / 2;
     const long m = ifloor(win * 2.0);
@@ -470,8 +492,8 @@ void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, doubl
             }
         }
         for (int c = 0; c < 3; c++)
-            bilinear(&Q[(0 * 3 + c) * ns], &Q[(1 * 3 + c) * ns], &Q[(2 * 3 + c) * ns], &Q[(3 * 3 + c) * ns],
-                     FX.data(), FY.data(), ns, &v[c * ns]);
+            bilinear(&Q[(0 * 3 + c) * ns], &Q[(1 * 3 + c) * ns], &Q[(2 * 3 + c) * ns],
+                     &Q[(3 * 3 + c) * ns], FX.data(), FY.data(), ns, &v[c * ns]);
         step_score(v.data(), ns, score.data());
         for (long i = 1; i < n - 1; i++) {
             const double c = score[(size_t)i], a = score[(size_t)i - 1], b = score[(size_t)i + 1];
@@ -486,7 +508,8 @@ void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, doubl
 
 bool solve3(const double M[9], const double v[3], double x[3])
 {
-    const double a = M[0], b = M[1], c = M[2], d = M[3], e = M[4], f = M[5], g = M[6], h = M[7], i = M[8];
+    const double a = M[0], b = M[1], c = M[2], d = M[3], e = M[4], f = M[5], g = M[6], h = M[7],
+                 i = M[8];
     const double co0 = e * i - f * h, co1 = f * g - d * i, co2 = d * h - e * g;
     const double det = a * co0 + b * co1 + c * co2;
     if (!(std::fabs(det) > 1e-300)) return false;
@@ -497,8 +520,8 @@ bool solve3(const double M[9], const double v[3], double x[3])
     return true;
 }
 
-bool kasa(const std::vector<double> &x, const std::vector<double> &y, const std::vector<double> &wts, double *cx,
-          double *cy, double *r)
+bool kasa(const std::vector<double> &x, const std::vector<double> &y,
+          const std::vector<double> &wts, double *cx, double *cy, double *r)
 {
     double sw = 0, sxx = 0, syy = 0, sxy = 0, sx = 0, sy = 0, sxz = 0, syz = 0, sz = 0;
     for (size_t i = 0; i < x.size(); i++) {
@@ -537,8 +560,8 @@ double median_abs(std::vector<double> v)
 
 // Tukey-reweighted circle through the candidate nearest the current circle on
 // each ray (preprocess.py _fit_rays). Rays from (ox, oy).
-bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, double oy, double *pcx, double *pcy,
-              double *pr, const pp_params *p)
+bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, double oy,
+              double *pcx, double *pcy, double *pr, const pp_params *p)
 {
     const int K = (int)dirs.size() / 2;
     double cx = *pcx - ox, cy = *pcy - oy, r = *pr;
@@ -559,7 +582,11 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
                 const double rho = re.cand[(size_t)i];
                 const double px = rho * ux, py = rho * uy;
                 const double e = std::sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r;
-                if (be < 0.0 || std::fabs(e) < be) { best = rho; be = std::fabs(e); bres = e; }
+                if (be < 0.0 || std::fabs(e) < be) {
+                    best = rho;
+                    be = std::fabs(e);
+                    bres = e;
+                }
             }
             xs.push_back(best * ux);
             ys.push_back(best * uy);
@@ -585,8 +612,8 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
 
 // Radius bin of each candidate for one centre shift: floor(((rho - dot) -
 // base) / step), Python's order; a loop of its own so that it vectorises.
-KERN2_CLONES void bin_indices(const double *rho, const double *ux, const double *uy, size_t n, double DX, double DY,
-                              double base, double step, int32_t *bi)
+KERN2_CLONES void bin_indices(const double *rho, const double *ux, const double *uy, size_t n,
+                              double DX, double DY, double base, double step, int32_t *bi)
 {
     // values within a few hundred bins: floor32 is exact
     for (size_t i = 0; i < n; i++) {
@@ -598,8 +625,8 @@ KERN2_CLONES void bin_indices(const double *rho, const double *ux, const double 
 // The (shift, radius) most rays agree on (preprocess.py _consensus): for
 // each shift on the grid, the radius bin of each candidate, then the bin
 // reached by the most rays; first in grid order, then bin order, on ties.
-bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, double win, double step, double *dx,
-               double *dy, double *rr)
+bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, double win,
+               double step, double *dx, double *dy, double *rr)
 {
     const int K = (int)dirs.size() / 2;
     const long W = ifloor(win / step);
@@ -634,7 +661,11 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
                 hist[(size_t)bi[i]]++;
             }
         for (long b = 0; b < nb; b++)
-            if (hist[(size_t)b] > best) { best = hist[(size_t)b]; bg = g; bb = b; }
+            if (hist[(size_t)b] > best) {
+                best = hist[(size_t)b];
+                bg = g;
+                bb = b;
+            }
     }
     if (bg < 0) return false;
     *dx = (double)(bg % G - W) * step;
@@ -645,8 +676,8 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
 
 // Support of a circle (preprocess.py _support): the fraction of all rays
 // with an edge candidate within inlier_px of r.
-double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r, const pp_params *p,
-               RayEdges &re)
+double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
+               const pp_params *p, RayEdges &re)
 {
     const int K = (int)dirs.size() / 2;
     ray_edges(f, dirs, cx, cy, r, p->inlier_px + 1.0, p->ray_edge_min, re);
@@ -654,13 +685,17 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     for (int k = 0; k < K; k++) {
         if (!re.ok[(size_t)k]) continue;
         for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++)
-            if (std::fabs(re.cand[(size_t)i] - r) <= p->inlier_px) { n++; break; }
+            if (std::fabs(re.cand[(size_t)i] - r) <= p->inlier_px) {
+                n++;
+                break;
+            }
     }
     return (double)n / K;
 }
 
 // Refine a coarse circle (preprocess.py _fine). False: none.
-bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s, const pp_params *p, Found *out)
+bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s, const pp_params *p,
+          Found *out)
 {
     double cx = c.cx, cy = c.cy, r = c.r;
     RayEdges re;
@@ -668,7 +703,8 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
         // first pass: the shift grid covers the coarse centre's error, the rays reach farther
         const double win = ps == 0 ? p->consensus_cells * s + p->consensus_px
                                    : p->fine_window_px + p->fine_window_frac * r;
-        ray_edges(f, dirs, cx, cy, r, ps == 0 ? p->consensus_reach * win : win, p->ray_edge_min, re);
+        ray_edges(f, dirs, cx, cy, r, ps == 0 ? p->consensus_reach * win : win, p->ray_edge_min,
+                  re);
         double sx = cx, sy = cy, sr = r;
         if (ps == 0) {
             double dx, dy, rr;
@@ -724,14 +760,31 @@ std::vector<double> ray_dirs(int k)
     for (int i = 0; i < k; i++) {
         const int octant = i / q, j = i % q;
         double c, s;
-        if (octant % 2 == 0) { c = bc[(size_t)j]; s = bs[(size_t)j]; }
-        else { s = bc[(size_t)(q - j)]; c = bs[(size_t)(q - j)]; }
+        if (octant % 2 == 0) {
+            c = bc[(size_t)j];
+            s = bs[(size_t)j];
+        } else {
+            s = bc[(size_t)(q - j)];
+            c = bs[(size_t)(q - j)];
+        }
         double x, y;
         switch (octant / 2) {
-        case 0: x = c; y = s; break;
-        case 1: x = -s; y = c; break;
-        case 2: x = -c; y = -s; break;
-        default: x = s; y = -c; break;
+        case 0:
+            x = c;
+            y = s;
+            break;
+        case 1:
+            x = -s;
+            y = c;
+            break;
+        case 2:
+            x = -c;
+            y = -s;
+            break;
+        default:
+            x = s;
+            y = -c;
+            break;
         }
         d[2 * (size_t)i] = x;
         d[2 * (size_t)i + 1] = y;
@@ -746,8 +799,8 @@ static double expected_radius(const pp_camera *cam)
     return f * R / std::sqrt(D * D - R * R);
 }
 
-int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *ocx, double *ocy,
-                double *orad, char *err, size_t errlen)
+int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *ocx,
+                double *ocy, double *orad, char *err, size_t errlen)
 {
     double rmin, rmax;
     if (p->cam.set) {
@@ -766,7 +819,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     std::vector<Found> fits;
     for (const Cand &c : cands) {
         Found fo;
-        if (fine(f, dirs, c, s, p, &fo) && fo.support >= p->min_support && rmin * 0.9 <= fo.r && fo.r <= rmax * 1.1)
+        if (fine(f, dirs, c, s, p, &fo) && fo.support >= p->min_support && rmin * 0.9 <= fo.r &&
+            fo.r <= rmax * 1.1)
             fits.push_back(fo);
     }
     // the best supported circle (first on ties) is the sphere
@@ -780,8 +834,10 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     const Found &a = fits[(size_t)ia];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
-        pi_seterrn(err, errlen, "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
-                   100 * cut, 100 * p->max_cut);
+        pi_seterrn(
+            err, errlen,
+            "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
+            100 * cut, 100 * p->max_cut);
         return -1;
     }
     // another well supported circle of about its size, neither centre inside
@@ -792,8 +848,10 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         const double rr = std::max(a.r, b.r);
         if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) continue;
         if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r)) {
-            pi_seterrn(err, errlen, "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
-                       a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
+            pi_seterrn(
+                err, errlen,
+                "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
+                a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
             return -1;
         }
     }
@@ -803,15 +861,16 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     return 0;
 }
 
-void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r, const pp_params *p,
-          uint8_t *out)
+void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r,
+          const pp_params *p, uint8_t *out)
 {
     const int S = p->size;
     const double half = r * p->margin;
     const long x0 = ifloor(cx - half + 0.5), y0 = ifloor(cy - half + 0.5);
     const long side = std::max(1L, ifloor(2 * half + 0.5));
     uint8_t fill[3];
-    for (int c = 0; c < 3; c++) fill[c] = (uint8_t)std::min(255.0, std::max(0.0, std::floor(p->fill[c] + 0.5)));
+    for (int c = 0; c < 3; c++)
+        fill[c] = (uint8_t)std::min(255.0, std::max(0.0, std::floor(p->fill[c] + 0.5)));
     const cv::Mat frame(h, w, CV_8UC3, const_cast<uint8_t *>(bgr), stride);
     cv::Mat roi;
     const long ix0 = std::max(0L, x0), iy0 = std::max(0L, y0);
@@ -822,10 +881,12 @@ void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy,
         roi = cv::Mat((int)side, (int)side, CV_8UC3, cv::Scalar(fill[0], fill[1], fill[2]));
         if (ix1 > ix0 && iy1 > iy0)
             frame(cv::Rect((int)ix0, (int)iy0, (int)(ix1 - ix0), (int)(iy1 - iy0)))
-                .copyTo(roi(cv::Rect((int)(ix0 - x0), (int)(iy0 - y0), (int)(ix1 - ix0), (int)(iy1 - iy0))));
+                .copyTo(roi(cv::Rect((int)(ix0 - x0), (int)(iy0 - y0), (int)(ix1 - ix0),
+                                     (int)(iy1 - iy0))));
     }
     cv::Mat small(S, S, CV_8UC3, out);
-    if (!kern::resize_area_c3(roi.data, (int)side, (int)side, roi.step[0], small.data, S, S, small.step[0]))
+    if (!kern::resize_area_c3(roi.data, (int)side, (int)side, roi.step[0], small.data, S, S,
+                              small.step[0]))
         cv::resize(roi, small, cv::Size(S, S), 0, 0, cv::INTER_AREA);
     // everything farther than r (1 + mask_frac) from the centre: fill
     const double scale = (double)side / S;
@@ -868,7 +929,8 @@ void undistort_map(const pp_camera *cam, int w, int h, UndistortMap *m)
             const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
             const double xd = x * radial + (2.0 * p1) * xy + p2 * (r2 + 2.0 * x2);
             const double yd = y * radial + p1 * (r2 + 2.0 * y2) + (2.0 * p2) * xy;
-            double mx = std::floor((f * xd + cx) * 32.0 + 0.5), my = std::floor((f * yd + cy) * 32.0 + 0.5);
+            double mx = std::floor((f * xd + cx) * 32.0 + 0.5),
+                   my = std::floor((f * yd + cy) * 32.0 + 0.5);
             mx = std::min(big, std::max(-big, mx));
             my = std::min(big, std::max(-big, my));
             m->mx[(size_t)j * w + i] = (int64_t)mx;
@@ -902,22 +964,29 @@ void remap(const uint8_t *bgr, size_t stride, const UndistortMap &m, uint8_t *ou
         for (int i = 0; i < w; i++) {
             const size_t k = (size_t)j * w + i;
             const int32_t ax = m.ax[k], ay = m.ay[k], x0 = m.x0[k], y0 = m.y0[k];
-            const int32_t w00 = (32 - ax) * (32 - ay), w01 = ax * (32 - ay), w10 = (32 - ax) * ay, w11 = ax * ay;
+            const int32_t w00 = (32 - ax) * (32 - ay), w01 = ax * (32 - ay), w10 = (32 - ax) * ay,
+                          w11 = ax * ay;
             uint8_t *o = out + 3 * k;
             if (m.inside[k]) {
                 const uint8_t *a = bgr + (size_t)y0 * stride + 3 * (size_t)x0, *b = a + stride;
                 for (int c = 0; c < 3; c++)
-                    o[c] = (uint8_t)((a[c] * w00 + a[3 + c] * w01 + b[c] * w10 + b[3 + c] * w11 + 512) >> 10);
+                    o[c] = (uint8_t)((a[c] * w00 + a[3 + c] * w01 + b[c] * w10 + b[3 + c] * w11 +
+                                      512) >>
+                                     10);
                 continue;
             }
             // a corner outside the frame reads 0
             const bool in0x = x0 >= 0 && x0 < w, in1x = x0 + 1 >= 0 && x0 + 1 < w;
             const bool in0y = y0 >= 0 && y0 < h, in1y = y0 + 1 >= 0 && y0 + 1 < h;
             for (int c = 0; c < 3; c++) {
-                const int32_t p00 = in0x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)x0 + c] : 0;
-                const int32_t p01 = in1x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)(x0 + 1) + c] : 0;
-                const int32_t p10 = in0x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)x0 + c] : 0;
-                const int32_t p11 = in1x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)(x0 + 1) + c] : 0;
+                const int32_t p00 =
+                    in0x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)x0 + c] : 0;
+                const int32_t p01 =
+                    in1x && in0y ? bgr[(size_t)y0 * stride + 3 * (size_t)(x0 + 1) + c] : 0;
+                const int32_t p10 =
+                    in0x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)x0 + c] : 0;
+                const int32_t p11 =
+                    in1x && in1y ? bgr[(size_t)(y0 + 1) * stride + 3 * (size_t)(x0 + 1) + c] : 0;
                 o[c] = (uint8_t)((p00 * w00 + p01 * w01 + p10 * w10 + p11 * w11 + 512) >> 10);
             }
         }

@@ -13,20 +13,21 @@
 
 #include "shim.h"
 
-namespace crop2 {
+namespace crop2
+{
 
 // The circle of the sphere in a BGR frame (OpenCV pixel coordinates: pixel
 // centres at integers). Returns 0, or -1 with err ("no sphere found in
 // frame", "two spheres in frame (...)", "sphere cut by the frame edge (...)").
-int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *cx, double *cy,
-                double *r, char *err, size_t errlen);
+int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *cx,
+                double *cy, double *r, char *err, size_t errlen);
 
 // Crop (steps after the circle): the square of side 2 r margin around it,
 // outside the frame `fill`, reduced to size x size (INTER_AREA), every output
 // pixel farther than r (1 + mask_frac) from the centre set to `fill`. Writes
 // size * size * 3 BGR bytes to out.
-void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r, const pp_params *p,
-          uint8_t *out);
+void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r,
+          const pp_params *p, uint8_t *out);
 
 // The undistortion map of a camera for a w x h frame: source positions in
 // 1/32 pixel (cv2.remap's fixed point), computed as preprocess.py does.

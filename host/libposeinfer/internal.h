@@ -7,7 +7,7 @@
 
 #include <stddef.h>
 
-#include "pi_err.h"   /* pi_seterr: every err message */
+#include "pi_err.h" /* pi_seterr: every err message */
 #include "poseinfer.h"
 #include "shim.h"
 
@@ -52,6 +52,7 @@ int pi_release_large(pi_ctx *ctx, size_t over);
 int pi_infer_fd(pi_ctx *ctx, int fd, const char *name, pi_result *res, char *err);
 
 /* Decode an encoded image into m, timing it into f->decode_ms. */
-int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f, char *err);
+int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f,
+                   char *err);
 
 #endif

@@ -52,9 +52,18 @@ static int parse_string(parser *p, char **out)
         unsigned char c = (unsigned char)p->s[p->pos];
         char tmp[4];
         size_t n = 0;
-        if (c == '\0') { free(buf); return fail(p, "unterminated string"); }
-        if (c < 0x20) { free(buf); return fail(p, "control character in string"); }
-        if (c == '"') { p->pos++; break; }
+        if (c == '\0') {
+            free(buf);
+            return fail(p, "unterminated string");
+        }
+        if (c < 0x20) {
+            free(buf);
+            return fail(p, "control character in string");
+        }
+        if (c == '"') {
+            p->pos++;
+            break;
+        }
         if (c == '\\') {
             char e = p->s[p->pos + 1];
             p->pos += 2;
@@ -71,13 +80,17 @@ static int parse_string(parser *p, char **out)
                 unsigned cp = 0;
                 for (int i = 0; i < 4; i++) {
                     int h = hexval(p->s[p->pos + i]);
-                    if (h < 0) { free(buf); return fail(p, "bad \\u escape"); }
+                    if (h < 0) {
+                        free(buf);
+                        return fail(p, "bad \\u escape");
+                    }
                     cp = cp * 16 + (unsigned)h;
                 }
                 p->pos += 4;
                 /* Surrogates are not needed for metadata; encode them as U+FFFD. */
                 if (cp == 0 || (cp >= 0xD800 && cp <= 0xDFFF)) cp = 0xFFFD;
-                if (cp < 0x80) tmp[n++] = (char)cp;
+                if (cp < 0x80)
+                    tmp[n++] = (char)cp;
                 else if (cp < 0x800) {
                     tmp[n++] = (char)(0xC0 | (cp >> 6));
                     tmp[n++] = (char)(0x80 | (cp & 0x3F));
@@ -88,7 +101,10 @@ static int parse_string(parser *p, char **out)
                 }
                 break;
             }
-            default: free(buf); p->pos -= 1; return fail(p, "bad escape");
+            default:
+                free(buf);
+                p->pos -= 1;
+                return fail(p, "bad escape");
             }
         } else {
             tmp[n++] = (char)c;
@@ -98,7 +114,10 @@ static int parse_string(parser *p, char **out)
             char *nb;
             cap = cap * 2 + n;
             nb = realloc(buf, cap);
-            if (!nb) { free(buf); return fail(p, "out of memory"); }
+            if (!nb) {
+                free(buf);
+                return fail(p, "out of memory");
+            }
             buf = nb;
         }
         memcpy(buf + len, tmp, n);
@@ -116,9 +135,12 @@ static int parse_number(parser *p, json_value *v)
     char *end;
     /* Validate the JSON grammar first: strtod alone accepts hex, inf, nan. */
     if (*q == '-') q++;
-    if (*q == '0') q++;
-    else if (isdigit((unsigned char)*q)) while (isdigit((unsigned char)*q)) q++;
-    else return fail(p, "bad number");
+    if (*q == '0')
+        q++;
+    else if (isdigit((unsigned char)*q))
+        while (isdigit((unsigned char)*q)) q++;
+    else
+        return fail(p, "bad number");
     if (*q == '.') {
         q++;
         if (!isdigit((unsigned char)*q)) return fail(p, "bad number");
@@ -162,7 +184,10 @@ static int parse_container(parser *p, json_value *v, int depth, int object)
     v->type = object ? JSON_OBJECT : JSON_ARRAY;
     p->pos++;
     skip_ws(p);
-    if (p->s[p->pos] == close) { p->pos++; return 0; }
+    if (p->s[p->pos] == close) {
+        p->pos++;
+        return 0;
+    }
     for (;;) {
         json_value item;
         char *key = NULL;
@@ -172,14 +197,30 @@ static int parse_container(parser *p, json_value *v, int depth, int object)
             if (p->s[p->pos] != '"') return fail(p, "expected a key");
             if (parse_string(p, &key) < 0) return -1;
             skip_ws(p);
-            if (p->s[p->pos] != ':') { free(key); return fail(p, "expected ':'"); }
+            if (p->s[p->pos] != ':') {
+                free(key);
+                return fail(p, "expected ':'");
+            }
             p->pos++;
         }
-        if (parse_value(p, &item, depth + 1) < 0) { free(key); return -1; }
-        if (push_item(p, v, key, &item) < 0) { free(key); json_free(&item); return -1; }
+        if (parse_value(p, &item, depth + 1) < 0) {
+            free(key);
+            return -1;
+        }
+        if (push_item(p, v, key, &item) < 0) {
+            free(key);
+            json_free(&item);
+            return -1;
+        }
         skip_ws(p);
-        if (p->s[p->pos] == ',') { p->pos++; continue; }
-        if (p->s[p->pos] == close) { p->pos++; return 0; }
+        if (p->s[p->pos] == ',') {
+            p->pos++;
+            continue;
+        }
+        if (p->s[p->pos] == close) {
+            p->pos++;
+            return 0;
+        }
         return fail(p, object ? "expected ',' or '}'" : "expected ',' or ']'");
     }
 }
@@ -194,13 +235,21 @@ static int parse_value(parser *p, json_value *v, int depth)
     case '"': v->type = JSON_STRING; return parse_string(p, &v->string);
     case 't':
         if (strncmp(p->s + p->pos, "true", 4)) return fail(p, "bad literal");
-        v->type = JSON_BOOL; v->number = 1; p->pos += 4; return 0;
+        v->type = JSON_BOOL;
+        v->number = 1;
+        p->pos += 4;
+        return 0;
     case 'f':
         if (strncmp(p->s + p->pos, "false", 5)) return fail(p, "bad literal");
-        v->type = JSON_BOOL; v->number = 0; p->pos += 5; return 0;
+        v->type = JSON_BOOL;
+        v->number = 0;
+        p->pos += 5;
+        return 0;
     case 'n':
         if (strncmp(p->s + p->pos, "null", 4)) return fail(p, "bad literal");
-        v->type = JSON_NULL; p->pos += 4; return 0;
+        v->type = JSON_NULL;
+        p->pos += 4;
+        return 0;
     case '\0': return fail(p, "unexpected end");
     default: return parse_number(p, v);
     }
@@ -208,11 +257,14 @@ static int parse_value(parser *p, json_value *v, int depth)
 
 int json_parse(const char *text, json_value *out, char *err, size_t errlen)
 {
-    parser p = { text, 0, err, errlen };
+    parser p = {text, 0, err, errlen};
     memset(out, 0, sizeof *out);
     if (parse_value(&p, out, 0) < 0) goto fail;
     skip_ws(&p);
-    if (text[p.pos] != '\0') { fail(&p, "trailing characters"); goto fail; }
+    if (text[p.pos] != '\0') {
+        fail(&p, "trailing characters");
+        goto fail;
+    }
     return 0;
 fail:
     json_free(out);
@@ -244,9 +296,20 @@ const json_value *json_get(const json_value *obj, const char *key)
 
 /* ---- output buffer ---------------------------------------------------- */
 
-void sb_init(sbuf *s) { memset(s, 0, sizeof *s); }
-void sb_free(sbuf *s) { free(s->buf); memset(s, 0, sizeof *s); }
-void sb_reset(sbuf *s) { s->len = 0; if (s->buf) s->buf[0] = '\0'; }
+void sb_init(sbuf *s)
+{
+    memset(s, 0, sizeof *s);
+}
+void sb_free(sbuf *s)
+{
+    free(s->buf);
+    memset(s, 0, sizeof *s);
+}
+void sb_reset(sbuf *s)
+{
+    s->len = 0;
+    if (s->buf) s->buf[0] = '\0';
+}
 
 static int sb_reserve(sbuf *s, size_t extra)
 {
@@ -257,7 +320,10 @@ static int sb_reserve(sbuf *s, size_t extra)
         char *nb;
         while (cap < need) cap *= 2;
         nb = realloc(s->buf, cap);
-        if (!nb) { s->oom = 1; return -1; }
+        if (!nb) {
+            s->oom = 1;
+            return -1;
+        }
         s->buf = nb;
         s->cap = cap;
     }
@@ -293,7 +359,8 @@ static size_t utf8_len(const unsigned char *c)
     unsigned char lo = 0x80, hi = 0xBF;
     size_t n;
     if (c[0] < 0x80) return 1;
-    if (c[0] >= 0xC2 && c[0] <= 0xDF) n = 2;
+    if (c[0] >= 0xC2 && c[0] <= 0xDF)
+        n = 2;
     else if (c[0] >= 0xE0 && c[0] <= 0xEF) {
         n = 3;
         if (c[0] == 0xE0) lo = 0xA0;
@@ -302,7 +369,8 @@ static size_t utf8_len(const unsigned char *c)
         n = 4;
         if (c[0] == 0xF0) lo = 0x90;
         if (c[0] == 0xF4) hi = 0x8F;
-    } else return 0;
+    } else
+        return 0;
     if (c[1] < lo || c[1] > hi) return 0; /* also stops at the NUL */
     for (size_t i = 2; i < n; i++)
         if (c[i] < 0x80 || c[i] > 0xBF) return 0;
@@ -317,11 +385,26 @@ void sb_json_str(sbuf *s, const char *str)
     while (*c) {
         size_t n;
         switch (*c) {
-        case '"': sb_puts(s, "\\\""); c++; continue;
-        case '\\': sb_puts(s, "\\\\"); c++; continue;
-        case '\n': sb_puts(s, "\\n"); c++; continue;
-        case '\r': sb_puts(s, "\\r"); c++; continue;
-        case '\t': sb_puts(s, "\\t"); c++; continue;
+        case '"':
+            sb_puts(s, "\\\"");
+            c++;
+            continue;
+        case '\\':
+            sb_puts(s, "\\\\");
+            c++;
+            continue;
+        case '\n':
+            sb_puts(s, "\\n");
+            c++;
+            continue;
+        case '\r':
+            sb_puts(s, "\\r");
+            c++;
+            continue;
+        case '\t':
+            sb_puts(s, "\\t");
+            c++;
+            continue;
         default: break;
         }
         if (*c < 0x20 || *c == 0x7f) {
@@ -349,7 +432,10 @@ void sb_json_str(sbuf *s, const char *str)
 
 void sb_json_num(sbuf *s, double v, int decimals)
 {
-    if (!isfinite(v)) { sb_puts(s, "null"); return; }
+    if (!isfinite(v)) {
+        sb_puts(s, "null");
+        return;
+    }
     if (v == 0) v = 0; /* no "-0.0000" */
     sb_printf(s, "%.*f", decimals, v);
 }

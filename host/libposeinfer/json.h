@@ -9,11 +9,11 @@ enum json_type { JSON_NULL, JSON_BOOL, JSON_NUMBER, JSON_STRING, JSON_ARRAY, JSO
 
 typedef struct json_value {
     enum json_type type;
-    double number;              /* JSON_NUMBER, JSON_BOOL (0/1) */
-    char *string;               /* JSON_STRING (NUL-terminated, no embedded NULs) */
-    size_t count;               /* JSON_ARRAY, JSON_OBJECT: number of items */
-    char **keys;                /* JSON_OBJECT: count keys */
-    struct json_value *items;   /* JSON_ARRAY, JSON_OBJECT: count values */
+    double number;            /* JSON_NUMBER, JSON_BOOL (0/1) */
+    char *string;             /* JSON_STRING (NUL-terminated, no embedded NULs) */
+    size_t count;             /* JSON_ARRAY, JSON_OBJECT: number of items */
+    char **keys;              /* JSON_OBJECT: count keys */
+    struct json_value *items; /* JSON_ARRAY, JSON_OBJECT: count values */
 } json_value;
 
 /* Parse text (NUL-terminated) into *out. Depth and size are bounded. Returns
@@ -30,7 +30,7 @@ const json_value *json_get(const json_value *obj, const char *key);
 typedef struct sbuf {
     char *buf;
     size_t len, cap;
-    int oom;          /* set when an allocation failed; contents then truncated */
+    int oom; /* set when an allocation failed; contents then truncated */
 } sbuf;
 
 void sb_init(sbuf *s);

@@ -20,7 +20,8 @@
 #define KERN_CLONES
 #endif
 
-namespace kern {
+namespace kern
+{
 
 // ---- foreground test --------------------------------------------------------
 
@@ -28,12 +29,16 @@ namespace kern {
 // i % 3. An empty interval becomes (255, 0), which every value is outside.
 struct Bounds {
     std::vector<uint8_t> lo, hi;
-    Bounds(const int l[3], const int h[3], int pixels) : lo((size_t)pixels * 3), hi((size_t)pixels * 3)
+    Bounds(const int l[3], const int h[3], int pixels)
+        : lo((size_t)pixels * 3), hi((size_t)pixels * 3)
     {
         uint8_t bl[3], bh[3];
         for (int c = 0; c < 3; c++) {
             int a = std::max(0, l[c]), b = std::min(255, h[c]);
-            if (a > b) { a = 255; b = 0; }
+            if (a > b) {
+                a = 255;
+                b = 0;
+            }
             bl[c] = (uint8_t)a;
             bh[c] = (uint8_t)b;
         }
@@ -62,7 +67,8 @@ static inline bool any_outside(const uint8_t *p, const uint8_t *lo, const uint8_
 enum { CHUNK = 64 };
 
 // First byte index in [from, to) outside its bounds, or -1.
-KERN_CLONES static long first_outside(const uint8_t *p, const uint8_t *lo, const uint8_t *hi, long from, long to)
+KERN_CLONES static long first_outside(const uint8_t *p, const uint8_t *lo, const uint8_t *hi,
+                                      long from, long to)
 {
     long i = from;
     for (; i + CHUNK <= to; i += CHUNK)
@@ -73,7 +79,8 @@ KERN_CLONES static long first_outside(const uint8_t *p, const uint8_t *lo, const
 }
 
 // Last byte index in [from, to) outside its bounds, or -1.
-KERN_CLONES static long last_outside(const uint8_t *p, const uint8_t *lo, const uint8_t *hi, long from, long to)
+KERN_CLONES static long last_outside(const uint8_t *p, const uint8_t *lo, const uint8_t *hi,
+                                     long from, long to)
 {
     long i = to;
     for (; i - CHUNK >= from; i -= CHUNK)
@@ -83,13 +90,13 @@ KERN_CLONES static long last_outside(const uint8_t *p, const uint8_t *lo, const 
     return -1;
 }
 
-KERN_CLONES bool fg_bbox(const uint8_t *bgr, int w, int h, size_t stride, const int lo[3], const int hi[3],
-             int *x0, int *y0, int *x1, int *y1)
+KERN_CLONES bool fg_bbox(const uint8_t *bgr, int w, int h, size_t stride, const int lo[3],
+                         const int hi[3], int *x0, int *y0, int *x1, int *y1)
 {
     const Bounds b(lo, hi, w);
     const uint8_t *bl = b.lo.data(), *bh = b.hi.data();
     const long n = 3L * w;
-    long bx0 = -1, bx1 = -1;  // byte columns of the box so far; -1: no foreground yet
+    long bx0 = -1, bx1 = -1; // byte columns of the box so far; -1: no foreground yet
     int by0 = -1, by1 = -1;
     for (int y = 0; y < h; y++) {
         const uint8_t *p = bgr + (size_t)y * stride;
@@ -121,8 +128,8 @@ KERN_CLONES bool fg_bbox(const uint8_t *bgr, int w, int h, size_t stride, const 
     return true;
 }
 
-KERN_CLONES void fg_mask(const uint8_t *bgr, size_t stride, int rx, int ry, int rw, int rh, const int lo[3],
-             const int hi[3], uint8_t *mask)
+KERN_CLONES void fg_mask(const uint8_t *bgr, size_t stride, int rx, int ry, int rw, int rh,
+                         const int lo[3], const int hi[3], uint8_t *mask)
 {
     const Bounds b(lo, hi, rw);
     // flags per byte, then the OR of each byte with its next two (both
@@ -132,7 +139,8 @@ KERN_CLONES void fg_mask(const uint8_t *bgr, size_t stride, int rx, int ry, int 
     for (int y = 0; y < rh; y++) {
         const uint8_t *p = bgr + (size_t)(ry + y) * stride + 3 * (size_t)rx;
         for (size_t i = 0; i < nb; i++) flag[i] = outside(p[i], b.lo[i], b.hi[i]);
-        for (size_t i = 0; i < nb; i++) any[i] = (uint8_t)(0 - (flag[i] | flag[i + 1] | flag[i + 2]));
+        for (size_t i = 0; i < nb; i++)
+            any[i] = (uint8_t)(0 - (flag[i] | flag[i + 1] | flag[i + 2]));
         uint8_t *m = mask + (size_t)y * rw;
         for (int x = 0; x < rw; x++) m[x] = any[3 * (size_t)x];
     }
@@ -146,16 +154,22 @@ KERN_CLONES void fg_mask(const uint8_t *bgr, size_t stride, int rx, int ry, int 
 typedef uint64_t word;
 
 struct ElemRow {
-    int dy;   // row offset, 0..k-1, in padded coordinates
-    int dx;   // first column of the run, 0..k-1, in padded coordinates
-    int len;  // run length
+    int dy;  // row offset, 0..k-1, in padded coordinates
+    int dx;  // first column of the run, 0..k-1, in padded coordinates
+    int len; // run length
 };
 
 struct Bits {
-    int nw;  // words per row, including spare words that hold the border
+    int nw; // words per row, including spare words that hold the border
     std::vector<word> v;
-    word *row(int y) { return &v[(size_t)y * nw]; }
-    const word *row(int y) const { return &v[(size_t)y * nw]; }
+    word *row(int y)
+    {
+        return &v[(size_t)y * nw];
+    }
+    const word *row(int y) const
+    {
+        return &v[(size_t)y * nw];
+    }
 };
 
 // Bit x of the result is bit x + t of src (t >= 0; src has the words it reads).
@@ -165,7 +179,7 @@ static inline word shr(const word *src, int j, int t)
     return r ? (src[j + q] >> r) | (src[j + q + 1] << (64 - r)) : src[j + q];
 }
 
-static inline word ones_from(int lo, int hi)  // bits [lo, hi) of one word, 0 <= lo <= hi <= 64
+static inline word ones_from(int lo, int hi) // bits [lo, hi) of one word, 0 <= lo <= hi <= 64
 {
     const word up = hi >= 64 ? ~(word)0 : (((word)1 << hi) - 1);
     return up & ~(lo >= 64 ? ~(word)0 : (((word)1 << lo) - 1));
@@ -182,12 +196,12 @@ static void place(const Bits &src, int w, int h, int a, Bits &dst)
             const int lo = std::max(0, a - 64 * j), hi = std::min(64, a + w - 64 * j);
             if (hi <= lo) continue;
             // bit b of word j is pixel 64j + b - a of src
-            const int x = 64 * j - a;  // pixel of bit 0 (may be negative)
+            const int x = 64 * j - a; // pixel of bit 0 (may be negative)
             word v;
             if (x >= 0) {
                 v = shr(s, 0, x);
             } else {
-                const int sh = -x;  // < 64 when lo < hi and a < 64 * (j + 1)
+                const int sh = -x; // < 64 when lo < hi and a < 64 * (j + 1)
                 v = sh >= 64 ? 0 : s[0] << sh;
             }
             const word m = ones_from(lo, hi);
@@ -200,7 +214,8 @@ static void place(const Bits &src, int w, int h, int a, Bits &dst)
 // out(y, x) = OP over element rows r of OP over pad(y + r.dy, x + r.dx ..
 // x + r.dx + r.len - 1), pad being in with a border of `border` bits.
 template <bool Max>
-static void morph_bits(const Bits &in, int w, int h, int k, const std::vector<ElemRow> &rows, Bits &out)
+static void morph_bits(const Bits &in, int w, int h, int k, const std::vector<ElemRow> &rows,
+                       Bits &out)
 {
     const word fill = Max ? 0 : ~(word)0;
     const int a = k / 2, ph = h + 2 * a;
@@ -220,14 +235,16 @@ static void morph_bits(const Bits &in, int w, int h, int k, const std::vector<El
             const int q = step >> 6;
             for (int y = 0; y < ph; y++) {
                 word *gr = g.row(y);
-                for (int j = 0; j + q + 1 < g.nw; j++) gr[j] = Max ? gr[j] | shr(gr, j, step) : gr[j] & shr(gr, j, step);
+                for (int j = 0; j + q + 1 < g.nw; j++)
+                    gr[j] = Max ? gr[j] | shr(gr, j, step) : gr[j] & shr(gr, j, step);
             }
             len += step;
         }
         for (int y = 0; y < h; y++) {
             const word *gr = g.row(y + r.dy);
             word *o = out.row(y);
-            for (int j = 0; j < nwo; j++) o[j] = Max ? o[j] | shr(gr, j, r.dx) : o[j] & shr(gr, j, r.dx);
+            for (int j = 0; j < nwo; j++)
+                o[j] = Max ? o[j] | shr(gr, j, r.dx) : o[j] & shr(gr, j, r.dx);
         }
     }
 }
@@ -240,17 +257,21 @@ KERN_CLONES bool close_binary(uint8_t *mask, int w, int h, const uint8_t *elem, 
         const uint8_t *e = elem + (size_t)i * k;
         int first = -1, last = -1;
         for (int j = 0; j < k; j++)
-            if (e[j]) { if (first < 0) first = j; last = j; }
+            if (e[j]) {
+                if (first < 0) first = j;
+                last = j;
+            }
         if (first < 0) continue;
         for (int j = first; j <= last; j++)
-            if (!e[j]) return false;  // not one run: leave it to OpenCV
+            if (!e[j]) return false; // not one run: leave it to OpenCV
         rows.push_back({i, first, last - first + 1});
     }
     if (rows.empty()) return false;
 #if !defined(__BYTE_ORDER__) || __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
-    return false;  // the packing below reads words as bytes, little-endian
+    return false; // the packing below reads words as bytes, little-endian
 #endif
-    std::sort(rows.begin(), rows.end(), [](const ElemRow &p, const ElemRow &q) { return p.len < q.len; });
+    std::sort(rows.begin(), rows.end(),
+              [](const ElemRow &p, const ElemRow &q) { return p.len < q.len; });
 
     // pack: 8 bytes of 0/255 at a time; byte i of the little-endian load
     // lands on bit i (the multiplier sums each byte's low bit into the top byte)
@@ -264,7 +285,8 @@ KERN_CLONES bool close_binary(uint8_t *mask, int w, int h, const uint8_t *elem, 
         for (; x + 8 <= w; x += 8) {
             word v;
             memcpy(&v, src + x, 8);
-            if ((v ^ (v >> 1)) & 0x7F7F7F7F7F7F7F7FULL) return false;  // a byte with unequal bits: not 0 or 255
+            if ((v ^ (v >> 1)) & 0x7F7F7F7F7F7F7F7FULL)
+                return false; // a byte with unequal bits: not 0 or 255
             v &= 0x0101010101010101ULL;
             dst[x >> 3] = (uint8_t)((v * 0x0102040810204080ULL) >> 56);
         }
@@ -315,7 +337,8 @@ static std::vector<Weight> area_weights(int ssize, int dsize, double scale)
         s1 = std::min(s1, s2);
         if (s1 - f1 > 1e-3) t.push_back({d, s1 - 1, (float)((s1 - f1) / cell)});
         for (int s = s1; s < s2; s++) t.push_back({d, s, (float)(1.0 / cell)});
-        if (f2 - s2 > 1e-3) t.push_back({d, s2, (float)(std::min(std::min(f2 - s2, 1.0), cell) / cell)});
+        if (f2 - s2 > 1e-3)
+            t.push_back({d, s2, (float)(std::min(std::min(f2 - s2, 1.0), cell) / cell)});
     }
     return t;
 }
@@ -330,8 +353,8 @@ static inline int32_t round_sat(float v)
     return (int32_t)std::min(255.0f, std::max(0.0f, r));
 }
 
-KERN_CLONES bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstride, uint8_t *dst, int dw, int dh,
-                    size_t dstride)
+KERN_CLONES bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstride, uint8_t *dst,
+                                int dw, int dh, size_t dstride)
 {
     if (sw < 1 || sh < 1 || dw < 1 || dh < 1) return false;
     const double sx = 1.0 / ((double)dw / sw), sy = 1.0 / ((double)dh / sh);
@@ -351,7 +374,7 @@ KERN_CLONES bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstri
     const int n = 4 * dw, ne = (int)xt.size(), inw = 3 * sw + 1;
     std::vector<float> in((size_t)ROWS * inw, 0.0f), rows((size_t)ROWS * n), sum((size_t)n);
     std::vector<int32_t> out((size_t)n);
-    int base = -1;  // rows holds the horizontal sums of source rows base .. base + ROWS - 1
+    int base = -1; // rows holds the horizontal sums of source rows base .. base + ROWS - 1
     size_t j = 0;
     for (int d = 0; d < dh; d++) {
         bool first = true;
@@ -369,7 +392,8 @@ KERN_CLONES bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstri
                         const float *q = &in[3 * (size_t)xt[e].s];
                         const float a = xt[e].a;
                         for (int r = 0; r < ROWS; r++)
-                            for (int c = 0; c < 4; c++) acc[r][c] = acc[r][c] + q[(size_t)r * inw + c] * a;
+                            for (int c = 0; c < 4; c++)
+                                acc[r][c] = acc[r][c] + q[(size_t)r * inw + c] * a;
                     }
                     for (int r = 0; r < ROWS; r++)
                         for (int c = 0; c < 4; c++) rows[(size_t)r * n + d4 + c] = acc[r][c];
@@ -387,7 +411,7 @@ KERN_CLONES bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstri
                 for (int i = 0; i < n; i++) sm[i] = sm[i] + beta * rw[i];
             }
         }
-        for (int i = 0; i < n; i++) out[i] = round_sat(sum[i]);  // vectorises; lane 3 unused
+        for (int i = 0; i < n; i++) out[i] = round_sat(sum[i]); // vectorises; lane 3 unused
         uint8_t *o = dst + (size_t)d * dstride;
         for (int x = 0; x < dw; x++) {
             o[3 * x] = (uint8_t)out[4 * (size_t)x];

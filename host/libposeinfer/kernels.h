@@ -11,7 +11,8 @@
 #include <cstdint>
 #include <vector>
 
-namespace kern {
+namespace kern
+{
 
 // A BGR pixel is foreground when any channel lies outside [lo_c, hi_c]
 // (lo_c > hi_c: every value is outside). Bounding box of the foreground
@@ -35,8 +36,8 @@ bool close_binary(uint8_t *mask, int w, int h, const uint8_t *elem, int k);
 // >= 1 on both axes: cv::resize(..., INTER_AREA), same arithmetic. Returns
 // false when the sizes ask for another path of cv::resize (enlarging, or
 // an integer factor on both axes), which the caller then uses.
-bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstride, uint8_t *dst, int dw, int dh,
-                    size_t dstride);
+bool resize_area_c3(const uint8_t *src, int sw, int sh, size_t sstride, uint8_t *dst, int dw,
+                    int dh, size_t dstride);
 
 } // namespace kern
 

@@ -7,7 +7,7 @@
 
 #include <stddef.h>
 
-#include "poseinfer.h"   /* PI_ERR_LEN */
+#include "poseinfer.h" /* PI_ERR_LEN */
 
 #ifdef __cplusplus
 extern "C" {

@@ -30,25 +30,25 @@ struct pi_ctx {
     OrtMemoryInfo *mem;
     OrtValue *in_val;
     OrtValue *out_val[2];
-    float *in_buf;          /* [3, S, S], wrapped by in_val */
-    float euler[3];         /* wrapped by out_val[0] */
-    float rot[9];           /* wrapped by out_val[1] */
+    float *in_buf;  /* [3, S, S], wrapped by in_val */
+    float euler[3]; /* wrapped by out_val[0] */
+    float rot[9];   /* wrapped by out_val[1] */
     int has_rotmat;
     pp_params pp;
     long max_pixels;
-    rf_texture *rf_tex;     /* the model's texture (NULL: no refinement), shared by clones */
-    rf_work *rf_w;          /* refinement's working memory, per context */
-    rf_conf rf_conf;        /* confidence thresholds and the model's ranges */
-    int rf_on;              /* refine (else only the residual at the network's pose) */
-    double rf_focal;        /* camera focal length in pixels, 0 = from the circle */
+    rf_texture *rf_tex; /* the model's texture (NULL: no refinement), shared by clones */
+    rf_work *rf_w;      /* refinement's working memory, per context */
+    rf_conf rf_conf;    /* confidence thresholds and the model's ranges */
+    int rf_on;          /* refine (else only the residual at the network's pose) */
+    double rf_focal;    /* camera focal length in pixels, 0 = from the circle */
     size_t nmeta;
     char **meta_keys, **meta_vals;
     shim_mat *mat;          /* decoded frame of the last pi_infer_file/memory */
     unsigned char *filebuf; /* reused read buffer */
     size_t filecap;
-    size_t frame_bytes;     /* size of the pixels held in mat */
-    pi_ctx *parent;         /* a clone (pi_clone): the context that owns the session */
-    int refs;               /* the owner: itself plus its clones (atomic) */
+    size_t frame_bytes; /* size of the pixels held in mat */
+    pi_ctx *parent;     /* a clone (pi_clone): the context that owns the session */
+    int refs;           /* the owner: itself plus its clones (atomic) */
 };
 
 static clockid_t pi_clock = CLOCK_MONOTONIC;
@@ -79,10 +79,13 @@ static int ort_fail(const OrtApi *ort, OrtStatus *st, char *err, const char *cal
     return -1;
 }
 
-#define ORT_CHECK(expr, call)                                           \
-    do {                                                                \
-        OrtStatus *st_ = (expr);                                        \
-        if (st_) { ort_fail(ctx->ort, st_, err, call); goto fail; }     \
+#define ORT_CHECK(expr, call)                   \
+    do {                                        \
+        OrtStatus *st_ = (expr);                \
+        if (st_) {                              \
+            ort_fail(ctx->ort, st_, err, call); \
+            goto fail;                          \
+        }                                       \
     } while (0)
 
 void pi_options_init(pi_options *o)
@@ -99,7 +102,9 @@ void pi_options_init(pi_options *o)
 static int load_camera(pi_ctx *ctx, const char *model, const char *path, char *err)
 {
     if (ctx->pp.version != 2) {
-        pi_seterr(err, "pi_open(%s): the model's preprocessing is sphere-crop-v1, which takes no camera file (%s)",
+        pi_seterr(err,
+                  "pi_open(%s): the model's preprocessing is sphere-crop-v1, which takes no camera "
+                  "file (%s)",
                   model, path);
         return -1;
     }
@@ -114,27 +119,30 @@ static int load_camera(pi_ctx *ctx, const char *model, const char *path, char *e
  * every key; the C side fills none). */
 static int pp_missing(const char *key, char *err, const char *model)
 {
-    pi_seterr(err, "pi_open(%s): metadata %s: sphere-crop-v1 needs key \"%s\" (the model's export wrote no "
-              "value for it)", model, META_PREPROCESS, key);
+    pi_seterr(
+        err,
+        "pi_open(%s): metadata %s: sphere-crop-v1 needs key \"%s\" (the model's export wrote no "
+        "value for it)",
+        model, META_PREPROCESS, key);
     return -1;
 }
 
-static int pp_number(const json_value *root, const char *key, double lo, double hi,
-                     double *out, char *err, const char *model)
+static int pp_number(const json_value *root, const char *key, double lo, double hi, double *out,
+                     char *err, const char *model)
 {
     const json_value *v = json_get(root, key);
     if (!v) return pp_missing(key, err, model);
     if (v->type != JSON_NUMBER || !(v->number >= lo && v->number <= hi)) {
-        pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be a number in [%g, %g]",
-                  model, META_PREPROCESS, key, lo, hi);
+        pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be a number in [%g, %g]", model,
+                  META_PREPROCESS, key, lo, hi);
         return -1;
     }
     *out = v->number;
     return 0;
 }
 
-static int pp_triple(const json_value *root, const char *key, float out[3], int positive,
-                     char *err, const char *model)
+static int pp_triple(const json_value *root, const char *key, float out[3], int positive, char *err,
+                     const char *model)
 {
     const json_value *v = json_get(root, key);
     if (!v) return pp_missing(key, err, model);
@@ -146,8 +154,8 @@ static int pp_triple(const json_value *root, const char *key, float out[3], int 
     }
     return 0;
 bad:
-    pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be 3 numbers%s", model,
-              META_PREPROCESS, key, positive ? " > 0" : "");
+    pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be 3 numbers%s", model, META_PREPROCESS,
+              key, positive ? " > 0" : "");
     return -1;
 }
 
@@ -168,24 +176,30 @@ int pi_parse_preprocess(const char *text, pp_params *p, char *err, const char *m
     }
     const json_value *name = json_get(&root, "name");
     if (!name) {
-        pi_seterr(err, "pi_open(%s): metadata %s: needs key \"name\" (the preprocessing, \"sphere-crop-v1\" or "
-                  "\"sphere-crop-v2\")", model, META_PREPROCESS);
+        pi_seterr(err,
+                  "pi_open(%s): metadata %s: needs key \"name\" (the preprocessing, "
+                  "\"sphere-crop-v1\" or "
+                  "\"sphere-crop-v2\")",
+                  model, META_PREPROCESS);
         goto fail;
     }
     if (name->type == JSON_STRING && strcmp(name->string, "sphere-crop-v2") == 0) {
-        int rc = pp_parse_v2(&root, p, err, model);  /* pp_v2.c: every key, no defaults */
+        int rc = pp_parse_v2(&root, p, err, model); /* pp_v2.c: every key, no defaults */
         json_free(&root);
         return rc;
     }
     if (name->type != JSON_STRING || strcmp(name->string, "sphere-crop-v1") != 0) {
-        pi_seterr(err, "pi_open(%s): metadata %s: unknown preprocessing %s; this runtime implements "
+        pi_seterr(err,
+                  "pi_open(%s): metadata %s: unknown preprocessing %s; this runtime implements "
                   "\"sphere-crop-v1\" and \"sphere-crop-v2\"",
-                  model, META_PREPROCESS, name->type == JSON_STRING ? name->string : "(not a string)");
+                  model, META_PREPROCESS,
+                  name->type == JSON_STRING ? name->string : "(not a string)");
         goto fail;
     }
     if (pp_number(&root, "size", 8, 2048, &size, err, model) < 0) goto fail;
     if (size != floor(size)) {
-        pi_seterr(err, "pi_open(%s): metadata %s: \"size\" must be an integer", model, META_PREPROCESS);
+        pi_seterr(err, "pi_open(%s): metadata %s: \"size\" must be an integer", model,
+                  META_PREPROCESS);
         goto fail;
     }
     p->size = (int)size;
@@ -222,8 +236,12 @@ static int io_shape(pi_ctx *ctx, int input, size_t idx, int64_t *dims, size_t *n
     OrtTypeInfo *ti = NULL;
     const OrtTensorTypeAndShapeInfo *tsi = NULL;
     ONNXType ot;
-    if (input) ORT_CHECK(ctx->ort->SessionGetInputTypeInfo(ctx->sess, idx, &ti), "SessionGetInputTypeInfo");
-    else ORT_CHECK(ctx->ort->SessionGetOutputTypeInfo(ctx->sess, idx, &ti), "SessionGetOutputTypeInfo");
+    if (input)
+        ORT_CHECK(ctx->ort->SessionGetInputTypeInfo(ctx->sess, idx, &ti),
+                  "SessionGetInputTypeInfo");
+    else
+        ORT_CHECK(ctx->ort->SessionGetOutputTypeInfo(ctx->sess, idx, &ti),
+                  "SessionGetOutputTypeInfo");
     ORT_CHECK(ctx->ort->GetOnnxTypeFromTypeInfo(ti, &ot), "GetOnnxTypeFromTypeInfo");
     if (ot != ONNX_TYPE_TENSOR) {
         pi_seterr(err, "model: %s %zu is not a tensor", input ? "input" : "output", idx);
@@ -278,14 +296,17 @@ static int check_contract(pi_ctx *ctx, const char *model, char *err)
         int ok;
         ORT_CHECK(ctx->ort->SessionGetInputName(ctx->sess, 0, alloc, &name), "SessionGetInputName");
         ok = strcmp(name, "image") == 0;
-        if (!ok) pi_seterr(err, "pi_open(%s): model input is \"%s\", expected \"image\"", model, name);
+        if (!ok)
+            pi_seterr(err, "pi_open(%s): model input is \"%s\", expected \"image\"", model, name);
         alloc->Free(alloc, name);
         if (!ok) goto fail;
     }
     if (io_shape(ctx, 1, 0, dims, &nd, &type, err) < 0) goto fail;
     shape_str(dims, nd, shp, sizeof shp);
     if (type != ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT || !shape_matches(dims, nd, want_in, 4)) {
-        pi_seterr(err, "pi_open(%s): model input \"image\" is %s%s, expected float32 [N,3,%lld,%lld] (size from %s)",
+        pi_seterr(err,
+                  "pi_open(%s): model input \"image\" is %s%s, expected float32 [N,3,%lld,%lld] "
+                  "(size from %s)",
                   model, type != ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT ? "not float32, " : "", shp,
                   (long long)S, (long long)S, META_PREPROCESS);
         goto fail;
@@ -293,7 +314,8 @@ static int check_contract(pi_ctx *ctx, const char *model, char *err)
     for (size_t i = 0; i < nout; i++) {
         char *name = NULL;
         int which;
-        ORT_CHECK(ctx->ort->SessionGetOutputName(ctx->sess, i, alloc, &name), "SessionGetOutputName");
+        ORT_CHECK(ctx->ort->SessionGetOutputName(ctx->sess, i, alloc, &name),
+                  "SessionGetOutputName");
         which = strcmp(name, "euler_deg") == 0 ? 0 : strcmp(name, "rotmat") == 0 ? 1 : -1;
         alloc->Free(alloc, name);
         if (which < 0) continue;
@@ -305,8 +327,10 @@ static int check_contract(pi_ctx *ctx, const char *model, char *err)
                       which ? "rotmat" : "euler_deg", shp, which ? "[N,3,3]" : "[N,3]");
             goto fail;
         }
-        if (which == 0) found_e = 1;
-        else ctx->has_rotmat = 1;
+        if (which == 0)
+            found_e = 1;
+        else
+            ctx->has_rotmat = 1;
     }
     if (!found_e) {
         pi_seterr(err, "pi_open(%s): model has no output \"euler_deg\"", model);
@@ -341,7 +365,10 @@ static int read_metadata(pi_ctx *ctx, const char *model, char *err)
     for (int64_t i = 0; i < nkeys; i++) {
         char *val = NULL;
         OrtStatus *st = ctx->ort->ModelMetadataLookupCustomMetadataMap(md, alloc, keys[i], &val);
-        if (st) { ort_fail(ctx->ort, st, err, "ModelMetadataLookupCustomMetadataMap"); goto fail; }
+        if (st) {
+            ort_fail(ctx->ort, st, err, "ModelMetadataLookupCustomMetadataMap");
+            goto fail;
+        }
         ctx->meta_keys[ctx->nmeta] = strdup(keys[i]);
         ctx->meta_vals[ctx->nmeta] = strdup(val ? val : "");
         ctx->nmeta++;
@@ -358,8 +385,10 @@ static int read_metadata(pi_ctx *ctx, const char *model, char *err)
         }
     }
     if (!found) {
-        pi_seterr(err, "pi_open(%s): model has no metadata key %s (the preprocessing it was trained with)",
-                  model, META_PREPROCESS);
+        pi_seterr(
+            err,
+            "pi_open(%s): model has no metadata key %s (the preprocessing it was trained with)",
+            model, META_PREPROCESS);
         goto fail;
     }
     for (int64_t i = 0; i < nkeys; i++) alloc->Free(alloc, keys[i]);
@@ -393,21 +422,30 @@ static int make_io(pi_ctx *ctx, char *err)
     const int64_t in_shape[4] = {1, 3, S, S}, e_shape[2] = {1, 3}, r_shape[3] = {1, 3, 3};
     size_t n = (size_t)(3 * S * S);
     ctx->in_buf = calloc(n, sizeof(float));
-    if (!ctx->in_buf) { pi_seterr(err, "pi_open: out of memory"); goto fail; }
+    if (!ctx->in_buf) {
+        pi_seterr(err, "pi_open: out of memory");
+        goto fail;
+    }
     ORT_CHECK(ctx->ort->CreateCpuMemoryInfo(OrtArenaAllocator, OrtMemTypeDefault, &ctx->mem),
               "CreateCpuMemoryInfo");
-    ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->in_buf, n * sizeof(float), in_shape, 4,
-                                                       ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->in_val),
+    ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(
+                  ctx->mem, ctx->in_buf, n * sizeof(float), in_shape, 4,
+                  ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->in_val),
               "CreateTensorWithDataAsOrtValue");
-    ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->euler, sizeof ctx->euler, e_shape, 2,
-                                                       ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[0]),
+    ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(
+                  ctx->mem, ctx->euler, sizeof ctx->euler, e_shape, 2,
+                  ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[0]),
               "CreateTensorWithDataAsOrtValue");
     if (ctx->has_rotmat)
-        ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(ctx->mem, ctx->rot, sizeof ctx->rot, r_shape, 3,
-                                                           ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[1]),
+        ORT_CHECK(ctx->ort->CreateTensorWithDataAsOrtValue(
+                      ctx->mem, ctx->rot, sizeof ctx->rot, r_shape, 3,
+                      ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[1]),
                   "CreateTensorWithDataAsOrtValue");
     ctx->mat = shim_mat_new();
-    if (!ctx->mat) { pi_seterr(err, "pi_open: out of memory"); goto fail; }
+    if (!ctx->mat) {
+        pi_seterr(err, "pi_open: out of memory");
+        goto fail;
+    }
     return 0;
 fail:
     return -1;
@@ -420,8 +458,14 @@ pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
     struct stat sb;
     const int64_t one = 1;
 
-    if (!opt) { pi_options_init(&def); opt = &def; }
-    if (!model_path) { pi_seterr(err, "pi_open: no model path"); return NULL; }
+    if (!opt) {
+        pi_options_init(&def);
+        opt = &def;
+    }
+    if (!model_path) {
+        pi_seterr(err, "pi_open: no model path");
+        return NULL;
+    }
     /* ORT's own message for a missing file is long; say it plainly. */
     if (stat(model_path, &sb) < 0) {
         pi_seterr(err, "pi_open(%s): %s", model_path, strerror(errno));
@@ -432,7 +476,10 @@ pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
         return NULL;
     }
     ctx = calloc(1, sizeof *ctx);
-    if (!ctx) { pi_seterr(err, "pi_open: out of memory"); return NULL; }
+    if (!ctx) {
+        pi_seterr(err, "pi_open: out of memory");
+        return NULL;
+    }
     ctx->refs = 1;
     ctx->max_pixels = opt->max_pixels > 0 ? opt->max_pixels : PI_DEFAULT_MAX_PIXELS;
     ctx->ort = OrtGetApiBase()->GetApi(ORT_API_VERSION);
@@ -446,10 +493,12 @@ pi_ctx *pi_open(const char *model_path, const pi_options *opt, char *err)
     ORT_CHECK(ctx->ort->CreateSessionOptions(&ctx->opts), "CreateSessionOptions");
     /* One frame at a time: a small, fixed pool; no spinning so that an idle
      * daemon uses no CPU; sequential execution. */
-    ORT_CHECK(ctx->ort->SetIntraOpNumThreads(ctx->opts, opt->intra_threads > 0 ? opt->intra_threads : 1),
-              "SetIntraOpNumThreads");
+    ORT_CHECK(
+        ctx->ort->SetIntraOpNumThreads(ctx->opts, opt->intra_threads > 0 ? opt->intra_threads : 1),
+        "SetIntraOpNumThreads");
     ORT_CHECK(ctx->ort->SetInterOpNumThreads(ctx->opts, 1), "SetInterOpNumThreads");
-    ORT_CHECK(ctx->ort->SetSessionExecutionMode(ctx->opts, ORT_SEQUENTIAL), "SetSessionExecutionMode");
+    ORT_CHECK(ctx->ort->SetSessionExecutionMode(ctx->opts, ORT_SEQUENTIAL),
+              "SetSessionExecutionMode");
     ORT_CHECK(ctx->ort->SetSessionGraphOptimizationLevel(ctx->opts, ORT_ENABLE_ALL),
               "SetSessionGraphOptimizationLevel");
     ORT_CHECK(ctx->ort->AddSessionConfigEntry(ctx->opts, "session.intra_op.allow_spinning", "0"),
@@ -539,10 +588,16 @@ void pi_close(pi_ctx *ctx)
 pi_ctx *pi_clone(pi_ctx *base, char *err)
 {
     pi_ctx *ctx;
-    if (!base) { pi_seterr(err, "pi_clone: no model"); return NULL; }
+    if (!base) {
+        pi_seterr(err, "pi_clone: no model");
+        return NULL;
+    }
     if (base->parent) base = base->parent;
     ctx = malloc(sizeof *ctx);
-    if (!ctx) { pi_seterr(err, "pi_clone: out of memory"); return NULL; }
+    if (!ctx) {
+        pi_seterr(err, "pi_clone: out of memory");
+        return NULL;
+    }
     /* Everything read-only is shared with the base (session, parameters,
      * metadata); the buffers are the clone's own. */
     *ctx = *base;
@@ -589,7 +644,10 @@ int pi_release_large(pi_ctx *ctx, size_t over)
     return freed;
 }
 
-int pi_input_size(const pi_ctx *ctx) { return ctx ? ctx->pp.size : 0; }
+int pi_input_size(const pi_ctx *ctx)
+{
+    return ctx ? ctx->pp.size : 0;
+}
 
 const char *pi_metadata(const pi_ctx *ctx, const char *key)
 {
@@ -602,23 +660,26 @@ const char *pi_metadata(const pi_ctx *ctx, const char *key)
 
 /* ---- inference ----------------------------------------------------------- */
 
-int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n,
-                        pi_result *res, char *err)
+int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, pi_result *res,
+                        char *err)
 {
     pp_circle c;
     pi_result tmp;
     double t0 = pi_now_ms();
     if (!res) res = &tmp;
     memset(res, 0, sizeof *res);
-    if (!ctx || !frame || !frame->data) { pi_seterr(err, "pi_preprocess_frame: no frame"); return -1; }
+    if (!ctx || !frame || !frame->data) {
+        pi_seterr(err, "pi_preprocess_frame: no frame");
+        return -1;
+    }
     if (n < (size_t)3 * ctx->pp.size * ctx->pp.size) {
         pi_seterr(err, "pi_preprocess_frame: output buffer too small");
         return -1;
     }
     if (frame->width <= 0 || frame->height <= 0 ||
         (double)frame->width * frame->height > (double)ctx->max_pixels) {
-        pi_seterr(err, "pi_preprocess_frame: frame is %dx%d, outside 1..%ld pixels",
-                  frame->width, frame->height, ctx->max_pixels);
+        pi_seterr(err, "pi_preprocess_frame: frame is %dx%d, outside 1..%ld pixels", frame->width,
+                  frame->height, ctx->max_pixels);
         return -1;
     }
     res->width = frame->width;
@@ -634,7 +695,10 @@ int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n
 
 int pi_run_only(pi_ctx *ctx, char *err)
 {
-    if (!ctx) { pi_seterr(err, "pi_run_only: no model"); return -1; }
+    if (!ctx) {
+        pi_seterr(err, "pi_run_only: no model");
+        return -1;
+    }
     return run_model(ctx, err);
 }
 
@@ -653,15 +717,17 @@ static int setup_refine(pi_ctx *ctx, const char *model, const pi_options *opt, c
     if (!ctx->rf_focal && ctx->pp.cam.set && ctx->pp.cam.pixel_mm > 0)
         ctx->rf_focal = ctx->pp.cam.focal_mm / ctx->pp.cam.pixel_mm;
     rf_conf_defaults(&ctx->rf_conf);
-    if (rf_conf_parse(&ctx->rf_conf, pi_metadata(ctx, RF_META_CONFIDENCE), pi_metadata(ctx, "spherepose.ranges"),
-                      rerr, sizeof rerr) < 0) {
+    if (rf_conf_parse(&ctx->rf_conf, pi_metadata(ctx, RF_META_CONFIDENCE),
+                      pi_metadata(ctx, "spherepose.ranges"), rerr, sizeof rerr) < 0) {
         pi_seterr(err, "pi_open(%s): %s", model, rerr);
         return -1;
     }
     if (!b64) {
         if (!told++)
-            fprintf(stderr, "poseinfer: %s carries no texture (metadata %s): angles are not refined and "
-                    "have no confidence; add it with python -m training.refine add-texture\n", model, RF_META_TEXTURE);
+            fprintf(stderr,
+                    "poseinfer: %s carries no texture (metadata %s): angles are not refined and "
+                    "have no confidence; add it with python -m training.refine add-texture\n",
+                    model, RF_META_TEXTURE);
         return 0;
     }
     unsigned char *png = NULL;
@@ -674,7 +740,8 @@ static int setup_refine(pi_ctx *ctx, const char *model, const pi_options *opt, c
     }
     m = shim_mat_new();
     if (!m || shim_decode(m, png, len, 64L * 1024 * 1024, &tf, rerr) < 0) {
-        pi_seterr(err, "pi_open(%s): metadata %s: %s", model, RF_META_TEXTURE, m ? rerr : "out of memory");
+        pi_seterr(err, "pi_open(%s): metadata %s: %s", model, RF_META_TEXTURE,
+                  m ? rerr : "out of memory");
         goto fail;
     }
     {
@@ -722,8 +789,8 @@ static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
                        frame->stride ? frame->stride : (size_t)frame->width * frame->channels};
         /* the localisation's circle is in OpenCV's pixel coordinates (centres
          * at integers); refinement works in the conventions' (centres at +0.5) */
-        if (rf_refine(ctx->rf_tex, ctx->rf_w, &fi, res->cx + 0.5, res->cy + 0.5, res->r + 0.5, R0, ctx->rf_focal,
-                      ctx->rf_on, &o, rerr, sizeof rerr) < 0) {
+        if (rf_refine(ctx->rf_tex, ctx->rf_w, &fi, res->cx + 0.5, res->cy + 0.5, res->r + 0.5, R0,
+                      ctx->rf_focal, ctx->rf_on, &o, rerr, sizeof rerr) < 0) {
             snprintf(res->note, sizeof res->note, "%s", rerr);
             res->refine_ms = pi_now_ms() - t0;
             return;
@@ -738,11 +805,10 @@ static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
         res->rcx = o.cx;
         res->rcy = o.cy;
         res->rr = o.r;
-        if (res->has_rotmat)
-            memcpy(res->rotmat, o.R, sizeof o.R);
+        if (res->has_rotmat) memcpy(res->rotmat, o.R, sizeof o.R);
     }
-    res->confident = rf_judge(&ctx->rf_conf, o.residual, ctx->rf_on ? o.euler : res->net, ctx->rf_on,
-                              res->note, sizeof res->note);
+    res->confident = rf_judge(&ctx->rf_conf, o.residual, ctx->rf_on ? o.euler : res->net,
+                              ctx->rf_on, res->note, sizeof res->note);
     res->refine_ms = pi_now_ms() - t0;
 }
 
@@ -756,7 +822,8 @@ int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err
         pi_seterr(err, "pi_infer_frame: no model");
         return -1;
     }
-    if (pi_preprocess_frame(ctx, frame, ctx->in_buf, (size_t)3 * ctx->pp.size * ctx->pp.size, res, err) < 0)
+    if (pi_preprocess_frame(ctx, frame, ctx->in_buf, (size_t)3 * ctx->pp.size * ctx->pp.size, res,
+                            err) < 0)
         return -1;
     t1 = pi_now_ms();
     if (run_model(ctx, err) < 0) return -1;
@@ -785,7 +852,8 @@ int pi_infer_bgr(pi_ctx *ctx, const uint8_t *bgr, int width, int height, size_t 
     return pi_infer_frame(ctx, &f, res, err);
 }
 
-int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f, char *err)
+int pi_decode_into(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *f,
+                   char *err)
 {
     double t0 = pi_now_ms();
     if (shim_decode(m, buf, len, max_pixels, f, err) < 0) return -1;
@@ -799,7 +867,10 @@ int pi_infer_memory(pi_ctx *ctx, const void *buf, size_t len, pi_result *res, ch
     pi_result tmp;
     if (!res) res = &tmp;
     memset(res, 0, sizeof *res);
-    if (!ctx || !buf) { pi_seterr(err, "pi_infer_memory: no data"); return -1; }
+    if (!ctx || !buf) {
+        pi_seterr(err, "pi_infer_memory: no data");
+        return -1;
+    }
     if (pi_decode_into(ctx->mat, buf, len, ctx->max_pixels, &f, err) < 0) return -1;
     ctx->frame_bytes = f.stride * (size_t)f.height;
     return pi_infer_frame(ctx, &f, res, err);
@@ -814,7 +885,10 @@ int pi_read_file(const char *path, unsigned char **buf, size_t *cap, size_t *len
     /* O_NONBLOCK: opening a FIFO (or a device) must not wait for a writer;
      * fstat on what was opened, so nothing is swapped in between. */
     fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
-    if (fd < 0) { pi_seterr(err, "open(%s): %s", path, strerror(errno)); goto fail; }
+    if (fd < 0) {
+        pi_seterr(err, "open(%s): %s", path, strerror(errno));
+        goto fail;
+    }
     return pi_read_fd(fd, path, buf, cap, len, err);
 fail:
     return -1;
@@ -822,8 +896,12 @@ fail:
 
 const char *pi_file_kind(unsigned mode)
 {
-    return S_ISDIR(mode) ? "a directory" : S_ISFIFO(mode) ? "a FIFO" : S_ISSOCK(mode) ? "a socket"
-         : S_ISCHR(mode) ? "a character device" : S_ISBLK(mode) ? "a block device" : "not a regular file";
+    return S_ISDIR(mode)    ? "a directory"
+           : S_ISFIFO(mode) ? "a FIFO"
+           : S_ISSOCK(mode) ? "a socket"
+           : S_ISCHR(mode)  ? "a character device"
+           : S_ISBLK(mode)  ? "a block device"
+                            : "not a regular file";
 }
 
 int pi_read_fd(int fd, const char *path, unsigned char **buf, size_t *cap, size_t *len, char *err)
@@ -832,7 +910,10 @@ int pi_read_fd(int fd, const char *path, unsigned char **buf, size_t *cap, size_
     size_t got = 0;
     long max_bytes = pi_max_file_bytes;
 
-    if (fstat(fd, &sb) < 0) { pi_seterr(err, "fstat(%s): %s", path, strerror(errno)); goto fail; }
+    if (fstat(fd, &sb) < 0) {
+        pi_seterr(err, "fstat(%s): %s", path, strerror(errno));
+        goto fail;
+    }
     if (!S_ISREG(sb.st_mode)) {
         pi_seterr(err, "open(%s): not a regular file (%s)", path, pi_file_kind(sb.st_mode));
         goto fail;
@@ -844,14 +925,20 @@ int pi_read_fd(int fd, const char *path, unsigned char **buf, size_t *cap, size_
     }
     if ((size_t)sb.st_size + 1 > *cap) {
         unsigned char *nb = realloc(*buf, (size_t)sb.st_size + 1);
-        if (!nb) { pi_seterr(err, "open(%s): out of memory", path); goto fail; }
+        if (!nb) {
+            pi_seterr(err, "open(%s): out of memory", path);
+            goto fail;
+        }
         *buf = nb;
         *cap = (size_t)sb.st_size + 1;
     }
     while (got < (size_t)sb.st_size) {
         ssize_t r = read(fd, *buf + got, (size_t)sb.st_size - got);
         if (r < 0 && errno == EINTR) continue;
-        if (r < 0) { pi_seterr(err, "read(%s): %s", path, strerror(errno)); goto fail; }
+        if (r < 0) {
+            pi_seterr(err, "read(%s): %s", path, strerror(errno));
+            goto fail;
+        }
         if (r == 0) break;
         got += (size_t)r;
     }
@@ -865,7 +952,10 @@ fail:
 
 int pi_load_file(pi_ctx *ctx, const char *path, pi_frame *f, char *err)
 {
-    if (!ctx || !path || !f) { pi_seterr(err, "pi_load_file: no file"); return -1; }
+    if (!ctx || !path || !f) {
+        pi_seterr(err, "pi_load_file: no file");
+        return -1;
+    }
     return pi_load_fd(ctx, -1, path, f, err);
 }
 
@@ -879,7 +969,8 @@ int pi_load_fd(pi_ctx *ctx, int fd, const char *path, pi_frame *f, char *err)
     if (shim_decode(ctx->mat, ctx->filebuf, len, ctx->max_pixels, f, err) < 0) {
         /* name the file: "decode(path): reason" */
         char tmp[PI_ERR_LEN];
-        snprintf(tmp, sizeof tmp, "%s", err && strncmp(err, "decode: ", 8) == 0 ? err + 8 : (err ? err : ""));
+        snprintf(tmp, sizeof tmp, "%s",
+                 err && strncmp(err, "decode: ", 8) == 0 ? err + 8 : (err ? err : ""));
         pi_seterr(err, "decode(%s): %s", path, tmp);
         return -1;
     }
@@ -894,7 +985,10 @@ int pi_infer_file(pi_ctx *ctx, const char *path, pi_result *res, char *err)
     pi_result tmp;
     if (!res) res = &tmp;
     memset(res, 0, sizeof *res);
-    if (!ctx || !path) { pi_seterr(err, "pi_infer_file: no file"); return -1; }
+    if (!ctx || !path) {
+        pi_seterr(err, "pi_infer_file: no file");
+        return -1;
+    }
     if (pi_load_file(ctx, path, &f, err) < 0) return -1;
     return pi_infer_frame(ctx, &f, res, err);
 }
@@ -916,6 +1010,9 @@ int pi_infer_fd(pi_ctx *ctx, int fd, const char *name, pi_result *res, char *err
 
 int pi_frame_save(const pi_frame *frame, const char *path, char *err)
 {
-    if (!frame || !frame->data || !path) { pi_seterr(err, "pi_frame_save: no frame"); return -1; }
+    if (!frame || !frame->data || !path) {
+        pi_seterr(err, "pi_frame_save: no frame");
+        return -1;
+    }
     return shim_save(frame, path, err);
 }

@@ -21,11 +21,17 @@ struct key {
     const char *name;
     enum kind kind;
     double lo, hi;
-    size_t off;    /* offset in pp_params */
+    size_t off; /* offset in pp_params */
 };
 
-#define NUM(n, lo, hi) {#n, K_NUM, lo, hi, offsetof(pp_params, n)}
-#define INT(n, lo, hi) {#n, K_INT, lo, hi, offsetof(pp_params, n)}
+#define NUM(n, lo, hi)                            \
+    {                                             \
+#n, K_NUM, lo, hi, offsetof(pp_params, n) \
+    }
+#define INT(n, lo, hi)                            \
+    {                                             \
+#n, K_INT, lo, hi, offsetof(pp_params, n) \
+    }
 
 static const struct key keys[] = {
     INT(size, 8, 2048),
@@ -68,8 +74,8 @@ int pp_parse_v2(const json_value *root, pp_params *p, char *err, const char *mod
         int known = !strcmp(root->keys[i], "name");
         for (size_t k = 0; k < nk && !known; k++) known = !strcmp(root->keys[i], keys[k].name);
         if (!known) {
-            pi_seterr(err, "pi_open(%s): metadata %s: unknown sphere-crop-v2 key \"%s\"", model, META,
-                      root->keys[i]);
+            pi_seterr(err, "pi_open(%s): metadata %s: unknown sphere-crop-v2 key \"%s\"", model,
+                      META, root->keys[i]);
             return -1;
         }
     }
@@ -78,41 +84,51 @@ int pp_parse_v2(const json_value *root, pp_params *p, char *err, const char *mod
         const json_value *v = json_get(root, ky->name);
         char *base = (char *)p + ky->off;
         if (!v) {
-            pi_seterr(err, "pi_open(%s): metadata %s: sphere-crop-v2 needs key \"%s\" (the model's export wrote "
-                      "no value for it)", model, META, ky->name);
+            pi_seterr(err,
+                      "pi_open(%s): metadata %s: sphere-crop-v2 needs key \"%s\" (the model's "
+                      "export wrote "
+                      "no value for it)",
+                      model, META, ky->name);
             return -1;
         }
         if (ky->kind == K_TRIPLE) {
             int ok = v->type == JSON_ARRAY && v->count == 3;
             for (size_t i = 0; ok && i < 3; i++)
-                ok = v->items[i].type == JSON_NUMBER && v->items[i].number >= ky->lo && v->items[i].number <= ky->hi &&
+                ok = v->items[i].type == JSON_NUMBER && v->items[i].number >= ky->lo &&
+                     v->items[i].number <= ky->hi &&
                      (strcmp(ky->name, "std") != 0 || v->items[i].number > 0);
             if (!ok) {
-                pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be 3 numbers in [%g, %g]%s", model, META,
-                          ky->name, ky->lo, ky->hi, strcmp(ky->name, "std") ? "" : ", > 0");
+                pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be 3 numbers in [%g, %g]%s",
+                          model, META, ky->name, ky->lo, ky->hi,
+                          strcmp(ky->name, "std") ? "" : ", > 0");
                 return -1;
             }
             for (size_t i = 0; i < 3; i++) {
-                if (!strcmp(ky->name, "fill")) ((double *)base)[i] = v->items[i].number;
-                else ((float *)base)[i] = (float)v->items[i].number;
+                if (!strcmp(ky->name, "fill"))
+                    ((double *)base)[i] = v->items[i].number;
+                else
+                    ((float *)base)[i] = (float)v->items[i].number;
             }
             continue;
         }
         if (v->type != JSON_NUMBER || !(v->number >= ky->lo && v->number <= ky->hi) ||
             (ky->kind == K_INT && v->number != floor(v->number))) {
-            pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be %s in [%g, %g]", model, META, ky->name,
-                      ky->kind == K_INT ? "an integer" : "a number", ky->lo, ky->hi);
+            pi_seterr(err, "pi_open(%s): metadata %s: \"%s\" must be %s in [%g, %g]", model, META,
+                      ky->name, ky->kind == K_INT ? "an integer" : "a number", ky->lo, ky->hi);
             return -1;
         }
-        if (ky->kind == K_INT) *(int *)base = (int)v->number;
-        else *(double *)base = v->number;
+        if (ky->kind == K_INT)
+            *(int *)base = (int)v->number;
+        else
+            *(double *)base = v->number;
     }
     if (p->rays % 8 != 0) {
         pi_seterr(err, "pi_open(%s): metadata %s: \"rays\" must be a multiple of 8", model, META);
         return -1;
     }
     if (!(p->r_min_frac <= p->r_max_frac)) {
-        pi_seterr(err, "pi_open(%s): metadata %s: \"r_min_frac\" must not exceed \"r_max_frac\"", model, META);
+        pi_seterr(err, "pi_open(%s): metadata %s: \"r_min_frac\" must not exceed \"r_max_frac\"",
+                  model, META);
         return -1;
     }
     return 0;
@@ -120,8 +136,9 @@ int pp_parse_v2(const json_value *root, pp_params *p, char *err, const char *mod
 
 /* ---- camera file ------------------------------------------------------------ */
 
-static const char *cam_keys[] = {"width", "height", "focal_mm", "pixel_mm", "distance_mm",
-                                 "sphere_diameter_mm", "principal_px", "distortion", NULL};
+static const char *cam_keys[] = {"width",        "height",      "focal_mm",
+                                 "pixel_mm",     "distance_mm", "sphere_diameter_mm",
+                                 "principal_px", "distortion",  NULL};
 
 /* As sim/camera.py check_distortion: the lens model must be one-to-one over
  * the frame (the distorted radius growing along the diagonal, a tenth
@@ -142,15 +159,21 @@ static int check_distortion(const pp_camera *cam, const char *path, char *err)
         const double r = r_max * i / 199, r2 = r * r;
         const double rd = r * (1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2);
         if (!(rd > prev)) {
-            pi_seterr(err, "camera file %s: key \"distortion\": the radial terms fold the image over within the "
-                      "frame (distorted radius not increasing); not a usable calibration", path);
+            pi_seterr(err,
+                      "camera file %s: key \"distortion\": the radial terms fold the image over "
+                      "within the "
+                      "frame (distorted radius not increasing); not a usable calibration",
+                      path);
             return -1;
         }
         prev = rd;
     }
     if (r_max > 0 && 2.0 * hypot(p1, p2) * r_max > 0.1) {
-        pi_seterr(err, "camera file %s: key \"distortion\": tangential terms p1, p2 move the frame's corners by "
-                  "more than 10 %%; not a usable calibration", path);
+        pi_seterr(err,
+                  "camera file %s: key \"distortion\": tangential terms p1, p2 move the frame's "
+                  "corners by "
+                  "more than 10 %%; not a usable calibration",
+                  path);
         return -1;
     }
     return 0;
@@ -185,8 +208,11 @@ int pp_camera_load(const char *path, pp_camera *cam, char *err)
     }
     free(buf);
     if (root.type != JSON_OBJECT) {
-        pi_seterr(err, "camera file %s: expected a JSON object with keys width, height, focal_mm, pixel_mm, "
-                  "distance_mm, sphere_diameter_mm, principal_px, distortion", path);
+        pi_seterr(
+            err,
+            "camera file %s: expected a JSON object with keys width, height, focal_mm, pixel_mm, "
+            "distance_mm, sphere_diameter_mm, principal_px, distortion",
+            path);
         goto out;
     }
     for (size_t i = 0; i < root.count; i++) {
@@ -195,21 +221,28 @@ int pp_camera_load(const char *path, pp_camera *cam, char *err)
         int known = 0;
         for (int j = 0; cam_keys[j]; j++) known |= !strcmp(k, cam_keys[j]);
         if (!known) {
-            pi_seterr(err, "camera file %s: unknown key \"%s\" (valid keys: width, height, focal_mm, pixel_mm, "
-                      "distance_mm, sphere_diameter_mm, principal_px, distortion)", path, k);
+            pi_seterr(err,
+                      "camera file %s: unknown key \"%s\" (valid keys: width, height, focal_mm, "
+                      "pixel_mm, "
+                      "distance_mm, sphere_diameter_mm, principal_px, distortion)",
+                      path, k);
             goto out;
         }
         if (!strcmp(k, "principal_px") || !strcmp(k, "distortion")) {
             const size_t n = !strcmp(k, "principal_px") ? 2 : 5;
             int ok = v->type == JSON_ARRAY && v->count == n;
-            for (size_t j = 0; ok && j < n; j++) ok = v->items[j].type == JSON_NUMBER && isfinite(v->items[j].number);
+            for (size_t j = 0; ok && j < n; j++)
+                ok = v->items[j].type == JSON_NUMBER && isfinite(v->items[j].number);
             if (!ok) {
-                pi_seterr(err, "camera file %s: key \"%s\" must be a list of %zu finite numbers", path, k, n);
+                pi_seterr(err, "camera file %s: key \"%s\" must be a list of %zu finite numbers",
+                          path, k, n);
                 goto out;
             }
             for (size_t j = 0; j < n; j++) {
-                if (n == 2) cam->principal[j] = v->items[j].number;
-                else cam->distortion[j] = v->items[j].number;
+                if (n == 2)
+                    cam->principal[j] = v->items[j].number;
+                else
+                    cam->distortion[j] = v->items[j].number;
             }
             if (n == 2) cam->has_principal = 1;
             continue;
@@ -220,20 +253,30 @@ int pp_camera_load(const char *path, pp_camera *cam, char *err)
         }
         if (!strcmp(k, "width") || !strcmp(k, "height")) {
             if (v->number != floor(v->number) || v->number > 16384) {
-                pi_seterr(err, "camera file %s: key \"%s\" must be a whole number of pixels up to 16384", path, k);
+                pi_seterr(err,
+                          "camera file %s: key \"%s\" must be a whole number of pixels up to 16384",
+                          path, k);
                 goto out;
             }
-            if (!strcmp(k, "width")) cam->width = (int)v->number;
-            else cam->height = (int)v->number;
-        } else if (!strcmp(k, "focal_mm")) cam->focal_mm = v->number;
-        else if (!strcmp(k, "pixel_mm")) cam->pixel_mm = v->number;
-        else if (!strcmp(k, "distance_mm")) cam->distance_mm = v->number;
-        else cam->sphere_diameter_mm = v->number;
+            if (!strcmp(k, "width"))
+                cam->width = (int)v->number;
+            else
+                cam->height = (int)v->number;
+        } else if (!strcmp(k, "focal_mm"))
+            cam->focal_mm = v->number;
+        else if (!strcmp(k, "pixel_mm"))
+            cam->pixel_mm = v->number;
+        else if (!strcmp(k, "distance_mm"))
+            cam->distance_mm = v->number;
+        else
+            cam->sphere_diameter_mm = v->number;
     }
     if (!(cam->distance_mm > cam->sphere_diameter_mm / 2.0 * 1.05)) {
-        pi_seterr(err, "camera file %s: key \"distance_mm\" (%g) must exceed the sphere radius (%g) with room to "
-                  "spare: the camera would sit inside the sphere", path, cam->distance_mm,
-                  cam->sphere_diameter_mm / 2.0);
+        pi_seterr(err,
+                  "camera file %s: key \"distance_mm\" (%g) must exceed the sphere radius (%g) "
+                  "with room to "
+                  "spare: the camera would sit inside the sphere",
+                  path, cam->distance_mm, cam->sphere_diameter_mm / 2.0);
         goto out;
     }
     for (int j = 0; j < 5; j++) cam->distorted |= cam->distortion[j] != 0.0;

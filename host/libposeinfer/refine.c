@@ -24,15 +24,15 @@
 
 struct rf_texture {
     int w[RF_LEVELS], h[RF_LEVELS];
-    float *px[RF_LEVELS];           /* [h][w][3], BGR; exact (8-bit values / 4^k) */
+    float *px[RF_LEVELS]; /* [h][w][3], BGR; exact (8-bit values / 4^k) */
 };
 
 /* Per sampled pixel: what the second pass of a step needs. */
 typedef struct rf_pix {
     double obs[3], val[3], n[3];
-    double jw[3][3];                /* d val_c / d omega (world rotation vector) */
-    double jt[3][3];                /* d val_c / d (cx, cy, r) */
-    int flat;                       /* the texture is constant around it: J = 0 */
+    double jw[3][3]; /* d val_c / d omega (world rotation vector) */
+    double jt[3][3]; /* d val_c / d (cx, cy, r) */
+    int flat;        /* the texture is constant around it: J = 0 */
 } rf_pix;
 
 struct rf_work {
@@ -54,9 +54,15 @@ void rf_euler_to_matrix(const double e[3], double R[3][3])
     const double d = M_PI / 180.0;
     double cx = cos(e[0] * d), sx = sin(e[0] * d), cy = cos(e[1] * d), sy = sin(e[1] * d);
     double cz = cos(e[2] * d), sz = sin(e[2] * d);
-    R[0][0] = cz * cy; R[0][1] = cz * sy * sx - sz * cx; R[0][2] = cz * sy * cx + sz * sx;
-    R[1][0] = sz * cy; R[1][1] = sz * sy * sx + cz * cx; R[1][2] = sz * sy * cx - cz * sx;
-    R[2][0] = -sy;     R[2][1] = cy * sx;                R[2][2] = cy * cx;
+    R[0][0] = cz * cy;
+    R[0][1] = cz * sy * sx - sz * cx;
+    R[0][2] = cz * sy * cx + sz * sx;
+    R[1][0] = sz * cy;
+    R[1][1] = sz * sy * sx + cz * cx;
+    R[1][2] = sz * sy * cx - cz * sx;
+    R[2][0] = -sy;
+    R[2][1] = cy * sx;
+    R[2][2] = cy * cx;
 }
 
 void rf_matrix_to_euler(const double R[3][3], double e[3])
@@ -96,14 +102,22 @@ int rf_base64_decode(const char *text, unsigned char **out, size_t *len)
     if (!buf) return -1;
     for (size_t i = 0; i < n; i++) {
         int c = (unsigned char)text[i], v;
-        if (c >= 'A' && c <= 'Z') v = c - 'A';
-        else if (c >= 'a' && c <= 'z') v = c - 'a' + 26;
-        else if (c >= '0' && c <= '9') v = c - '0' + 52;
-        else if (c == '+') v = 62;
-        else if (c == '/') v = 63;
-        else if (c == '=') { pad++; continue; }
-        else goto bad;
-        if (pad) goto bad;          /* data after padding */
+        if (c >= 'A' && c <= 'Z')
+            v = c - 'A';
+        else if (c >= 'a' && c <= 'z')
+            v = c - 'a' + 26;
+        else if (c >= '0' && c <= '9')
+            v = c - '0' + 52;
+        else if (c == '+')
+            v = 62;
+        else if (c == '/')
+            v = 63;
+        else if (c == '=') {
+            pad++;
+            continue;
+        } else
+            goto bad;
+        if (pad) goto bad; /* data after padding */
         acc = (acc << 6) | (unsigned)v;
         bits += 6;
         if (bits >= 8) {
@@ -141,8 +155,13 @@ static void reduce2(const float *src, int w, int h, float *dst)
 static inline void load_px(const rf_image *im, int i, int j, double *out)
 {
     const uint8_t *p = im->data + (size_t)j * im->stride + (size_t)i * im->channels;
-    if (im->channels == 1) out[0] = out[1] = out[2] = p[0];
-    else { out[0] = p[0]; out[1] = p[1]; out[2] = p[2]; }
+    if (im->channels == 1)
+        out[0] = out[1] = out[2] = p[0];
+    else {
+        out[0] = p[0];
+        out[1] = p[1];
+        out[2] = p[2];
+    }
 }
 
 rf_texture *rf_texture_new(const rf_image *img, char *err)
@@ -153,7 +172,8 @@ rf_texture *rf_texture_new(const rf_image *img, char *err)
         return NULL;
     }
     if (w % unit || w < RF_TEXTURE_WIDTH) {
-        pi_seterrn(err, RF_TEXTURE_ERR_LEN, "texture width %d must be a multiple of %d and at least %d", w, unit,
+        pi_seterrn(err, RF_TEXTURE_ERR_LEN,
+                   "texture width %d must be a multiple of %d and at least %d", w, unit,
                    RF_TEXTURE_WIDTH);
         return NULL;
     }
@@ -205,7 +225,10 @@ void rf_texture_free(rf_texture *t)
     free(t);
 }
 
-rf_work *rf_work_new(void) { return calloc(1, sizeof(rf_work)); }
+rf_work *rf_work_new(void)
+{
+    return calloc(1, sizeof(rf_work));
+}
 
 void rf_work_free(rf_work *w)
 {
@@ -228,7 +251,8 @@ static int grow(void **p, size_t *cap, size_t need)
  * levels are not built: a level-l pixel is the mean of a 2^l x 2^l block of
  * the frame, summed where a sampled pixel needs it (sums of 8-bit values are
  * exact in any order, so this equals the Python pyramid's values). */
-static int frame_crop(rf_work *w, const rf_image *f, double cx, double cy, double r, int *x0, int *y0)
+static int frame_crop(rf_work *w, const rf_image *f, double cx, double cy, double r, int *x0,
+                      int *y0)
 {
     double half = r + RF_CROP_PAD;
     int step = 1 << (RF_LEVELS - 1);
@@ -248,7 +272,10 @@ static int frame_crop(rf_work *w, const rf_image *f, double cx, double cy, doubl
         for (int j = ya; j < yb && w->gray; j++) {
             const uint8_t *p = f->data + (size_t)j * f->stride + (size_t)xa * f->channels;
             for (int i = xa; i < xb; i++, p += f->channels)
-                if (p[0] != p[1] || p[1] != p[2]) { w->gray = 0; break; }
+                if (p[0] != p[1] || p[1] != p[2]) {
+                    w->gray = 0;
+                    break;
+                }
         }
     w->w[0] = xb - xa;
     w->h[0] = yb - ya;
@@ -288,7 +315,7 @@ static inline double focal_of(double r, double fixed_f)
 
 /* What the normals of one evaluation share: the circle and the camera. */
 typedef struct rf_geom {
-    double cx, cy, inv_f, dist, dist2m1;    /* dist: camera to centre, unit sphere */
+    double cx, cy, inv_f, dist, dist2m1; /* dist: camera to centre, unit sphere */
 } rf_geom;
 
 static inline void geom_init(rf_geom *g, double cx, double cy, double r, double f)
@@ -319,8 +346,8 @@ static inline void normal_at(double u, double v, const rf_geom *g, double n[3], 
 
 /* d n / d (cx, cy, r) at pixel (u, v), n given (training/refine.py
  * normals_and_derivs: dt = -(n.dO + t n.dd) / (n.d), dn = dO + dt d + t dd). */
-static inline void normal_derivs(double u, double v, double cx, double cy, double r, double f, int fixed,
-                                 const double n[3], double t, double dn[3][3])
+static inline void normal_derivs(double u, double v, double cx, double cy, double r, double f,
+                                 int fixed, const double n[3], double t, double dn[3][3])
 {
     double x = (u - cx) / f, y = -(v - cy) / f;
     double tan_a = r / f, sec = sqrt(1.0 + tan_a * tan_a);
@@ -328,8 +355,12 @@ static inline void normal_derivs(double u, double v, double cx, double cy, doubl
     double d[3] = {x * inv, y * inv, -inv};
     double nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
     double dqs[3][3] = {{-1.0 / f, 0, 0}, {0, 1.0 / f, 0}, {0, 0, 0}}, dDs[3] = {0, 0, 0};
-    if (fixed) dDs[2] = -(1.0 / f) / (tan_a * tan_a * sec);
-    else { dqs[2][0] = -x / r; dqs[2][1] = -y / r; }
+    if (fixed)
+        dDs[2] = -(1.0 / f) / (tan_a * tan_a * sec);
+    else {
+        dqs[2][0] = -x / r;
+        dqs[2][1] = -y / r;
+    }
     for (int k = 0; k < 3; k++) {
         const double *dq = dqs[k];
         double ddq = d[0] * dq[0] + d[1] * dq[1] + d[2] * dq[2], dd[3];
@@ -400,7 +431,11 @@ static void solve_spd(int k, double A[6][6], const double *b, double *x)
         for (int i = c + 1; i < k; i++)
             if (fabs(M[i][c]) > fabs(M[p][c])) p = i;
         if (p != c)
-            for (int j = 0; j <= k; j++) { double t = M[c][j]; M[c][j] = M[p][j]; M[p][j] = t; }
+            for (int j = 0; j <= k; j++) {
+                double t = M[c][j];
+                M[c][j] = M[p][j];
+                M[p][j] = t;
+            }
         double d = M[c][c];
         if (d == 0) d = 1e-300;
         for (int i = c + 1; i < k; i++) {
@@ -429,8 +464,10 @@ static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int s
     if (i1 > W) i1 = W;
     j0 = (j0 + stride - 1) / stride * stride;
     i0 = (i0 + stride - 1) / stride * stride;
-    size_t most = (j1 > j0 && i1 > i0) ? (size_t)((j1 - j0) / stride + 1) * ((i1 - i0) / stride + 1) : 0;
-    if (grow((void **)&w->pix, &w->pcap, (most + 1) * (sizeof(rf_pix) + 2 * sizeof(double))) < 0) return -1;
+    size_t most =
+        (j1 > j0 && i1 > i0) ? (size_t)((j1 - j0) / stride + 1) * ((i1 - i0) / stride + 1) : 0;
+    if (grow((void **)&w->pix, &w->pcap, (most + 1) * (sizeof(rf_pix) + 2 * sizeof(double))) < 0)
+        return -1;
     /* the pixel centres live after the rf_pix records in the same block */
     *uv = (double *)(w->pix + most + 1);
     long n = 0;
@@ -464,12 +501,14 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
         rf_pix *p = &w->pix[k];
         double u = uv[2 * k], v = uv[2 * k + 1], b[3], grad[3][3], tt;
         normal_at(u, v, &geo, p->n, &tt);
-        for (int i = 0; i < 3; i++) b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
+        for (int i = 0; i < 3; i++)
+            b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
         tex_sample(tex, tw, th, b, p->val, grad);
         if (w->gray) {
             double y = p->val[0] * RF_LUMA_B + p->val[1] * RF_LUMA_G + p->val[2] * RF_LUMA_R;
             for (int i = 0; i < 3; i++) {
-                double gi = grad[0][i] * RF_LUMA_B + grad[1][i] * RF_LUMA_G + grad[2][i] * RF_LUMA_R;
+                double gi =
+                    grad[0][i] * RF_LUMA_B + grad[1][i] * RF_LUMA_G + grad[2][i] * RF_LUMA_R;
                 grad[0][i] = grad[1][i] = grad[2][i] = gi;
             }
             p->val[0] = p->val[1] = p->val[2] = y;
@@ -527,7 +566,10 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
             if (H && !p->flat) {
                 double J[6], tv = p->val[c];
                 double ab[5] = {tv, tv * p->n[0], tv * p->n[1], tv * p->n[2], 1.0};
-                for (int i = 0; i < 3; i++) { J[i] = p->jw[c][i] * shade; J[3 + i] = p->jt[c][i] * shade; }
+                for (int i = 0; i < 3; i++) {
+                    J[i] = p->jw[c][i] * shade;
+                    J[3 + i] = p->jt[c][i] * shade;
+                }
                 for (int i = 0; i < 6; i++) {
                     for (int j = i; j < 6; j++) H[i][j] += J[i] * J[j];
                     for (int j = 0; j < 5; j++) JtA[c][i][j] += J[i] * ab[j];
@@ -557,20 +599,28 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
     *sst_out = sst;
 }
 
-int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy, double r,
-              const double R0[3][3], double focal_px, int steps, rf_out *out, char *err, size_t errlen)
+int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
+              double r, const double R0[3][3], double focal_px, int steps, rf_out *out, char *err,
+              size_t errlen)
 {
     double R[3][3];
     int x0, y0, total = 0, have_final = 0;
     double *uv, final_sse = 0, final_sst = 0;
     memcpy(R, R0, sizeof R);
-    if (!t || !w || !frame || !frame->data || !(r > 2) || !isfinite(cx) || !isfinite(cy) || !isfinite(r)) {
+    if (!t || !w || !frame || !frame->data || !(r > 2) || !isfinite(cx) || !isfinite(cy) ||
+        !isfinite(r)) {
         pi_seterrn(err, errlen, "refine: no texture, frame or circle");
         return -1;
     }
     int rc = frame_crop(w, frame, cx, cy, r, &x0, &y0);
-    if (rc == -1) { pi_seterrn(err, errlen, "refine: out of memory"); return -1; }
-    if (rc == -2) { pi_seterrn(err, errlen, "refine: circle outside the frame"); return -1; }
+    if (rc == -1) {
+        pi_seterrn(err, errlen, "refine: out of memory");
+        return -1;
+    }
+    if (rc == -2) {
+        pi_seterrn(err, errlen, "refine: circle outside the frame");
+        return -1;
+    }
     cx -= x0;
     cy -= y0;
     for (int lev = RF_LEVELS - 1; lev >= 0 && steps; lev--) {
@@ -578,7 +628,10 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         double ff = focal_px > 0 ? focal_px * s : 0;
         int li = RF_LEVELS - 1 - lev;
         long np = pixel_set(w, lev, cx * s, cy * s, r * s, rf_strides[li], &uv);
-        if (np < 0) { pi_seterrn(err, errlen, "refine: out of memory"); return -1; }
+        if (np < 0) {
+            pi_seterrn(err, errlen, "refine: out of memory");
+            return -1;
+        }
         if (np < 50) continue;
         if (!rf_iters[li]) continue;
         /* Levenberg-Marquardt (training/refine.py): a step is kept only when it
@@ -625,8 +678,14 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
      * at the final pose (training/refine.py) */
     if (!have_final) {
         long np = pixel_set(w, 0, cx, cy, r, rf_strides[RF_LEVELS - 1], &uv);
-        if (np < 0) { pi_seterrn(err, errlen, "refine: out of memory"); return -1; }
-        if (np < 50) { pi_seterrn(err, errlen, "refine: circle too small or outside the frame"); return -1; }
+        if (np < 0) {
+            pi_seterrn(err, errlen, "refine: out of memory");
+            return -1;
+        }
+        if (np < 50) {
+            pi_seterrn(err, errlen, "refine: circle too small or outside the frame");
+            return -1;
+        }
         evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &final_sse, &final_sst, NULL, NULL);
     }
     out->residual = final_sst > 0 ? final_sse / final_sst : 1.0;
@@ -646,7 +705,10 @@ void rf_conf_defaults(rf_conf *c)
     c->residual_max = 0.25;
     c->residual_max_unrefined = 0.25;
     c->range_margin_deg = 2.0;
-    for (int i = 0; i < 3; i++) { c->ranges[i][0] = -30; c->ranges[i][1] = 30; }
+    for (int i = 0; i < 3; i++) {
+        c->ranges[i][0] = -30;
+        c->ranges[i][1] = 30;
+    }
 }
 
 static int conf_number(const json_value *o, const char *key, double lo, double hi, double *out,
@@ -655,15 +717,17 @@ static int conf_number(const json_value *o, const char *key, double lo, double h
     const json_value *v = json_get(o, key);
     if (!v) return 0;
     if (v->type != JSON_NUMBER || !(v->number >= lo && v->number <= hi)) {
-        pi_seterrn(err, errlen, "metadata spherepose.confidence: \"%s\" must be a number in [%g, %g]",
-                          key, lo, hi);
+        pi_seterrn(err, errlen,
+                   "metadata spherepose.confidence: \"%s\" must be a number in [%g, %g]", key, lo,
+                   hi);
         return -1;
     }
     *out = v->number;
     return 0;
 }
 
-int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err, size_t errlen)
+int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err,
+                  size_t errlen)
 {
     json_value root;
     char jerr[128];
@@ -679,8 +743,10 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
             /* without its own threshold the unrefined residual uses the refined one */
             has_unrefined = json_get(&root, "residual_max_unrefined") != NULL;
             bad = conf_number(&root, "residual_max", 0, 1, &c->residual_max, err, errlen) < 0 ||
-                  conf_number(&root, "residual_max_unrefined", 0, 1, &c->residual_max_unrefined, err, errlen) < 0 ||
-                  conf_number(&root, "range_margin_deg", 0, 180, &c->range_margin_deg, err, errlen) < 0;
+                  conf_number(&root, "residual_max_unrefined", 0, 1, &c->residual_max_unrefined,
+                              err, errlen) < 0 ||
+                  conf_number(&root, "range_margin_deg", 0, 180, &c->range_margin_deg, err,
+                              errlen) < 0;
             if (!has_unrefined) c->residual_max_unrefined = c->residual_max;
         }
         json_free(&root);
@@ -696,7 +762,8 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
             const json_value *v = root.type == JSON_OBJECT ? json_get(&root, names[i]) : NULL;
             if (!v || v->type != JSON_ARRAY || v->count != 2 || v->items[0].type != JSON_NUMBER ||
                 v->items[1].type != JSON_NUMBER || !(v->items[0].number <= v->items[1].number)) {
-                pi_seterrn(err, errlen, "metadata spherepose.ranges: \"%s\" must be [lo, hi] degrees", names[i]);
+                pi_seterrn(err, errlen,
+                           "metadata spherepose.ranges: \"%s\" must be [lo, hi] degrees", names[i]);
                 json_free(&root);
                 return -1;
             }
@@ -708,18 +775,21 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
     return 0;
 }
 
-int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note, size_t notelen)
+int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note,
+             size_t notelen)
 {
     double max = refined ? c->residual_max : c->residual_max_unrefined, m = c->range_margin_deg;
     if (!(residual <= max)) {
-        snprintf(note, notelen, "poor alignment (residual %.3f > %.3f): another texture, a pose outside the "
-                 "model's ranges, or a wrong sphere", residual, max);
+        snprintf(note, notelen,
+                 "poor alignment (residual %.3f > %.3f): another texture, a pose outside the "
+                 "model's ranges, or a wrong sphere",
+                 residual, max);
         return 0;
     }
     for (int i = 0; i < 3; i++) {
         if (!(euler[i] >= c->ranges[i][0] - m && euler[i] <= c->ranges[i][1] + m)) {
-            snprintf(note, notelen, "outside the model's ranges (%c = %.1f not in [%g, %g])", "xyz"[i], euler[i],
-                     c->ranges[i][0], c->ranges[i][1]);
+            snprintf(note, notelen, "outside the model's ranges (%c = %.1f not in [%g, %g])",
+                     "xyz"[i], euler[i], c -> ranges[i][0], c -> ranges[i][1]);
             return 0;
         }
     }

@@ -7,27 +7,33 @@
 #include <stddef.h>
 #include <stdint.h>
 
-#define RF_META_TEXTURE "spherepose.texture_png"
+#define RF_META_TEXTURE    "spherepose.texture_png"
 #define RF_META_CONFIDENCE "spherepose.confidence"
 
 /* The parameters of training/refine.py (tests/host/unit/test_refine.c reads
  * them back from the Python file). */
 #define RF_LEVELS 3
 #ifndef RF_ITERS_INIT
-#define RF_ITERS_INIT {4, 2, 1}       /* Levenberg-Marquardt steps per level, coarse to fine */
+#define RF_ITERS_INIT \
+    {                 \
+        4, 2, 1       \
+    } /* Levenberg-Marquardt steps per level, coarse to fine */
 #endif
 #ifndef RF_STRIDES_INIT
-#define RF_STRIDES_INIT {2, 3, 5}     /* pixel sampling stride per level, coarse to fine */
+#define RF_STRIDES_INIT \
+    {                   \
+        2, 3, 5         \
+    } /* pixel sampling stride per level, coarse to fine */
 #endif
-#define RF_RHO_MAX 0.92
-#define RF_CROP_PAD 4.0               /* the crop: the circle's square grown by this (px) */
+#define RF_RHO_MAX       0.92
+#define RF_CROP_PAD      4.0 /* the crop: the circle's square grown by this (px) */
 #define RF_TEXTURE_WIDTH 1024
-#define RF_DAMPING 1e-3
-#define RF_MAX_STEP_DEG 3.0
-#define RF_REF_D_OVER_R 12.5
-#define RF_LUMA_B 0.114               /* a gray frame sees the texture as its luma */
-#define RF_LUMA_G 0.587
-#define RF_LUMA_R 0.299
+#define RF_DAMPING       1e-3
+#define RF_MAX_STEP_DEG  3.0
+#define RF_REF_D_OVER_R  12.5
+#define RF_LUMA_B        0.114 /* a gray frame sees the texture as its luma */
+#define RF_LUMA_G        0.587
+#define RF_LUMA_R        0.299
 
 /* The texture pyramid (finest RF_TEXTURE_WIDTH wide). */
 typedef struct rf_texture rf_texture;
@@ -36,17 +42,17 @@ typedef struct rf_texture rf_texture;
 typedef struct rf_work rf_work;
 
 typedef struct rf_image {
-    const uint8_t *data;   /* 8-bit pixels, channels 1 (gray), 3 (BGR) or 4 (BGRA) */
+    const uint8_t *data; /* 8-bit pixels, channels 1 (gray), 3 (BGR) or 4 (BGRA) */
     int width, height, channels;
-    size_t stride;         /* bytes per row */
+    size_t stride; /* bytes per row */
 } rf_image;
 
 typedef struct rf_out {
-    double R[3][3];        /* refined body-to-world rotation */
-    double euler[3];       /* the same as (x, y, z) degrees */
-    double cx, cy, r;      /* refined circle, continuous pixel coordinates */
-    double residual;       /* unexplained fraction of the frame's variance, [0, 1] */
-    int iterations;        /* Levenberg-Marquardt steps kept */
+    double R[3][3];   /* refined body-to-world rotation */
+    double euler[3];  /* the same as (x, y, z) degrees */
+    double cx, cy, r; /* refined circle, continuous pixel coordinates */
+    double residual;  /* unexplained fraction of the frame's variance, [0, 1] */
+    int iterations;   /* Levenberg-Marquardt steps kept */
 } rf_out;
 
 /* Texture from decoded pixels (an equirectangular image, width = 2 x height,
@@ -65,25 +71,28 @@ void rf_work_free(rf_work *w);
  * r and the reference camera. steps = 0: no refinement, only the residual at
  * R0 and the circle. Returns 0, or -1 with err (too small a circle, out of
  * memory). */
-int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy, double r,
-              const double R0[3][3], double focal_px, int steps, rf_out *out, char *err, size_t errlen);
+int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
+              double r, const double R0[3][3], double focal_px, int steps, rf_out *out, char *err,
+              size_t errlen);
 
 /* Confidence: thresholds (metadata spherepose.confidence) and the model's
  * ranges (spherepose.ranges). */
 typedef struct rf_conf {
-    double residual_max;            /* refined residual above this: not confident */
-    double residual_max_unrefined;  /* the same for the residual at the network's pose */
-    double range_margin_deg;        /* a pose this far beyond the ranges: not confident */
-    double ranges[3][2];            /* x, y, z: [lo, hi] degrees */
+    double residual_max;           /* refined residual above this: not confident */
+    double residual_max_unrefined; /* the same for the residual at the network's pose */
+    double range_margin_deg;       /* a pose this far beyond the ranges: not confident */
+    double ranges[3][2];           /* x, y, z: [lo, hi] degrees */
 } rf_conf;
 
 void rf_conf_defaults(rf_conf *c);
 
 /* Parse either JSON text (NULL: keep the defaults). -1 with err naming the key. */
-int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err, size_t errlen);
+int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err,
+                  size_t errlen);
 
 /* 1 when confident, else 0 with the reason in note (training/refine.py judge). */
-int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note, size_t notelen);
+int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note,
+             size_t notelen);
 
 /* Conventions' conversions (docs/conventions.md). */
 void rf_euler_to_matrix(const double euler_deg[3], double R[3][3]);

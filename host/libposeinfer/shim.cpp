@@ -43,24 +43,44 @@ static std::string cv_message(const cv::Exception &e)
     return msg;
 }
 
-#define SHIM_CATCH(call)                                                        \
-    catch (const cv::Exception &e) { seterr(err, call, cv_message(e).c_str()); } \
-    catch (const std::bad_alloc &) { seterr(err, call, "out of memory"); }       \
-    catch (const std::exception &e) { seterr(err, call, e.what()); }           \
-    catch (...) { seterr(err, call, "unknown C++ exception"); }
+#define SHIM_CATCH(call)                            \
+    catch (const cv::Exception &e)                  \
+    {                                               \
+        seterr(err, call, cv_message(e).c_str());   \
+    }                                               \
+    catch (const std::bad_alloc &)                  \
+    {                                               \
+        seterr(err, call, "out of memory");         \
+    }                                               \
+    catch (const std::exception &e)                 \
+    {                                               \
+        seterr(err, call, e.what());                \
+    }                                               \
+    catch (...)                                     \
+    {                                               \
+        seterr(err, call, "unknown C++ exception"); \
+    }
 
 extern "C" shim_mat *shim_mat_new(void)
 {
-    try { return new shim_mat(); } catch (...) { return nullptr; }
+    try {
+        return new shim_mat();
+    } catch (...) {
+        return nullptr;
+    }
 }
 
-extern "C" void shim_mat_free(shim_mat *m) { delete m; }
+extern "C" void shim_mat_free(shim_mat *m)
+{
+    delete m;
+}
 
 // ---- header probing: refuse huge images before allocating them -------------
 
 static unsigned long be32(const unsigned char *p)
 {
-    return ((unsigned long)p[0] << 24) | ((unsigned long)p[1] << 16) | ((unsigned long)p[2] << 8) | p[3];
+    return ((unsigned long)p[0] << 24) | ((unsigned long)p[1] << 16) | ((unsigned long)p[2] << 8) |
+           p[3];
 }
 
 static long le32s(const unsigned char *p)
@@ -78,7 +98,10 @@ static int pnm_ints(const unsigned char *buf, size_t len, long *w, long *h)
     for (int k = 0; k < 2; k++) {
         for (;;) {
             while (i < len && isspace(buf[i])) i++;
-            if (i < len && buf[i] == '#') { while (i < len && buf[i] != '\n') i++; continue; }
+            if (i < len && buf[i] == '#') {
+                while (i < len && buf[i] != '\n') i++;
+                continue;
+            }
             break;
         }
         if (i >= len || !isdigit(buf[i])) return -1;
@@ -117,10 +140,19 @@ extern "C" int shim_probe_size(const unsigned char *buf, size_t len, long *w, lo
         }
         i = 2;
         while (i + 9 < len) {
-            if (buf[i] != 0xff) { i++; continue; }
+            if (buf[i] != 0xff) {
+                i++;
+                continue;
+            }
             unsigned char mk = buf[i + 1];
-            if (mk == 0xff) { i++; continue; }
-            if (mk == 0xd8 || mk == 0x01 || (mk >= 0xd0 && mk <= 0xd7)) { i += 2; continue; }
+            if (mk == 0xff) {
+                i++;
+                continue;
+            }
+            if (mk == 0xd8 || mk == 0x01 || (mk >= 0xd0 && mk <= 0xd7)) {
+                i += 2;
+                continue;
+            }
             size_t seglen = ((size_t)buf[i + 2] << 8) | buf[i + 3];
             if (mk >= 0xc0 && mk <= 0xcf && mk != 0xc4 && mk != 0xc8 && mk != 0xcc) {
                 *h = ((long)buf[i + 5] << 8) | buf[i + 6];
@@ -147,17 +179,24 @@ extern "C" int shim_probe_size(const unsigned char *buf, size_t len, long *w, lo
     return 1;
 }
 
-extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels,
-                           pi_frame *out, char *err)
+extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *out,
+                           char *err)
 {
     try {
         long w = 0, h = 0;
-        if (len == 0) { seterr(err, "decode", "empty file"); return -1; }
-        if (len > (size_t)INT_MAX) { seterr(err, "decode", "file too large"); return -1; }
+        if (len == 0) {
+            seterr(err, "decode", "empty file");
+            return -1;
+        }
+        if (len > (size_t)INT_MAX) {
+            seterr(err, "decode", "file too large");
+            return -1;
+        }
         int pr = shim_probe_size((const unsigned char *)buf, len, &w, &h, err);
         if (pr < 0) return -1;
         if (pr == 0 && (double)w * (double)h > (double)max_pixels) {
-            pi_seterr(err, "decode: image is %ldx%ld, over the limit of %ld pixels", w, h, max_pixels);
+            pi_seterr(err, "decode: image is %ldx%ld, over the limit of %ld pixels", w, h,
+                      max_pixels);
             return -1;
         }
         cv::Mat raw(1, (int)len, CV_8U, const_cast<void *>(buf));
@@ -173,7 +212,8 @@ extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pi
             return -1;
         }
         if ((double)m->m.cols * m->m.rows > (double)max_pixels) {
-            pi_seterr(err, "decode: image is %dx%d, over the limit of %ld pixels", m->m.cols, m->m.rows, max_pixels);
+            pi_seterr(err, "decode: image is %dx%d, over the limit of %ld pixels", m->m.cols,
+                      m->m.rows, max_pixels);
             m->m.release();
             return -1;
         }
@@ -205,13 +245,16 @@ static double hist_median(const unsigned long hist[256], unsigned long n)
     for (int v = 0; v < 256; v++) {
         acc += hist[v];
         if (vlo < 0 && acc > lo) vlo = v;
-        if (vhi < 0 && acc > hi) { vhi = v; break; }
+        if (vhi < 0 && acc > hi) {
+            vhi = v;
+            break;
+        }
     }
     return (vlo + vhi) / 2.0;
 }
 
-static void add_rows(const cv::Mat &bgr, int r0, int r1, int c0, int c1,
-                     unsigned long hist[3][256], unsigned long *n)
+static void add_rows(const cv::Mat &bgr, int r0, int r1, int c0, int c1, unsigned long hist[3][256],
+                     unsigned long *n)
 {
     for (int r = r0; r < r1; r++) {
         const unsigned char *p = bgr.ptr<unsigned char>(r) + 3 * c0;
@@ -249,13 +292,14 @@ static void normalise(const unsigned char *small, size_t step, const pp_params *
 }
 
 // sphere-crop-v2: undistort (camera with distortion), find the circle, crop.
-static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp_circle *circ, char *err)
+static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp_circle *circ,
+                         char *err)
 {
     const cv::Mat *bgr = &bgr0;
     cv::Mat und;
     if (p->cam.set && (bgr0.cols != p->cam.width || bgr0.rows != p->cam.height)) {
-        pi_seterr(err, "preprocess: frame is %dx%d, the camera file's calibration is for %dx%d", bgr0.cols,
-                  bgr0.rows, p->cam.width, p->cam.height);
+        pi_seterr(err, "preprocess: frame is %dx%d, the camera file's calibration is for %dx%d",
+                  bgr0.cols, bgr0.rows, p->cam.width, p->cam.height);
         return -1;
     }
     if (p->undistort) {
@@ -266,7 +310,8 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
     }
     double cx, cy, r;
     char why[200];
-    if (crop2::find_sphere(bgr->data, bgr->cols, bgr->rows, bgr->step[0], p, &cx, &cy, &r, why, sizeof why) < 0) {
+    if (crop2::find_sphere(bgr->data, bgr->cols, bgr->rows, bgr->step[0], p, &cx, &cy, &r, why,
+                           sizeof why) < 0) {
         seterr(err, "preprocess", why);
         return -1;
     }
@@ -304,21 +349,25 @@ extern "C" void shim_camera_free(pp_params *p)
     p->undistort = nullptr;
 }
 
-extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out,
-                               pp_circle *circ, char *err)
+extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out, pp_circle *circ,
+                               char *err)
 {
     try {
         const int h = f->height, w = f->width, S = p->size;
-        if (!f->data || h < 8 || w < 8 || (f->channels != 1 && f->channels != 3 && f->channels != 4)) {
+        if (!f->data || h < 8 || w < 8 ||
+            (f->channels != 1 && f->channels != 3 && f->channels != 4)) {
             seterr(err, "preprocess", "frame too small or not 1, 3 or 4 channels of 8 bits");
             return -1;
         }
         size_t stride = f->stride ? f->stride : (size_t)w * f->channels;
         cv::Mat src(h, w, CV_8UC(f->channels), const_cast<uint8_t *>(f->data), stride);
         cv::Mat bgr;
-        if (f->channels == 1) cv::cvtColor(src, bgr, cv::COLOR_GRAY2BGR);
-        else if (f->channels == 4) cv::cvtColor(src, bgr, cv::COLOR_BGRA2BGR);
-        else bgr = src;
+        if (f->channels == 1)
+            cv::cvtColor(src, bgr, cv::COLOR_GRAY2BGR);
+        else if (f->channels == 4)
+            cv::cvtColor(src, bgr, cv::COLOR_BGRA2BGR);
+        else
+            bgr = src;
         if (p->version == 2) return preprocess_v2(bgr, p, out, circ, err);
 
         // 1. Background: per-channel median of the border band.
@@ -363,7 +412,8 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
         const int bx0 = std::max(0, fx0 - k - 1), by0 = std::max(0, fy0 - k - 1);
         const int bx1 = std::min(w, fx1 + k + 2), by1 = std::min(h, fy1 + k + 2);
         cv::Mat closed(by1 - by0, bx1 - bx0, CV_8U);
-        kern::fg_mask(bgr.data, bgr.step[0], bx0, by0, closed.cols, closed.rows, lo, hi, closed.data);
+        kern::fg_mask(bgr.data, bgr.step[0], bx0, by0, closed.cols, closed.rows, lo, hi,
+                      closed.data);
         if (k > 1) {
             cv::Mat kernel = cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(k, k));
             if (!kern::close_binary(closed.data, closed.cols, closed.rows, kernel.data, k))
@@ -372,12 +422,16 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
 
         // 4. Largest external contour (first on ties).
         std::vector<std::vector<cv::Point>> contours;
-        cv::findContours(closed, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE, cv::Point(bx0, by0));
+        cv::findContours(closed, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE,
+                         cv::Point(bx0, by0));
         int best = -1;
         double best_area = -1.0;
         for (size_t i = 0; i < contours.size(); i++) {
             double a = cv::contourArea(contours[i]);
-            if (a > best_area) { best = (int)i; best_area = a; }
+            if (a > best_area) {
+                best = (int)i;
+                best_area = a;
+            }
         }
         if (best < 0 || best_area < p->min_area_frac * h * w) {
             seterr(err, "preprocess", "no sphere found in frame");
@@ -404,7 +458,8 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
             return -1;
         }
         cv::Scalar fill;
-        for (int c = 0; c < 3; c++) fill[c] = std::min(255.0, std::max(0.0, std::floor(bg[c] + 0.5)));
+        for (int c = 0; c < 3; c++)
+            fill[c] = std::min(255.0, std::max(0.0, std::floor(bg[c] + 0.5)));
         cv::Mat roi;
         const long ix0 = std::max(0L, x0), iy0 = std::max(0L, y0);
         const long ix1 = std::min((long)w, x0 + side), iy1 = std::min((long)h, y0 + side);
@@ -414,12 +469,14 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
             roi = cv::Mat((int)side, (int)side, CV_8UC3, fill);
             if (ix1 > ix0 && iy1 > iy0)
                 bgr(cv::Rect((int)ix0, (int)iy0, (int)(ix1 - ix0), (int)(iy1 - iy0)))
-                    .copyTo(roi(cv::Rect((int)(ix0 - x0), (int)(iy0 - y0), (int)(ix1 - ix0), (int)(iy1 - iy0))));
+                    .copyTo(roi(cv::Rect((int)(ix0 - x0), (int)(iy0 - y0), (int)(ix1 - ix0),
+                                         (int)(iy1 - iy0))));
         }
 
         // 7. Resize.
         cv::Mat small(S, S, CV_8UC3);
-        if (!kern::resize_area_c3(roi.data, (int)side, (int)side, roi.step[0], small.data, S, S, small.step[0]))
+        if (!kern::resize_area_c3(roi.data, (int)side, (int)side, roi.step[0], small.data, S, S,
+                                  small.step[0]))
             cv::resize(roi, small, cv::Size(S, S), 0, 0, cv::INTER_AREA);
 
         // 8. Normalise.
@@ -467,7 +524,8 @@ extern "C" shim_cap *shim_cap_open(const char *spec, char *err)
         } else if (strncmp(spec, "gst:", 4) == 0) {
             ok = c->cap.open(std::string(spec + 4), cv::CAP_GSTREAMER);
         } else {
-            seterr(err, "camera", "unknown source; expected /dev/videoN, an index, gst:<pipeline> or unix:<path>");
+            seterr(err, "camera",
+                   "unknown source; expected /dev/videoN, an index, gst:<pipeline> or unix:<path>");
             delete c;
             return nullptr;
         }
@@ -503,4 +561,7 @@ extern "C" int shim_cap_grab(shim_cap *c, pi_frame *out, char *err)
     return -1;
 }
 
-extern "C" void shim_cap_close(shim_cap *c) { delete c; }
+extern "C" void shim_cap_close(shim_cap *c)
+{
+    delete c;
+}

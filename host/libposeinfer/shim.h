@@ -18,9 +18,9 @@ typedef struct pp_camera {
     int width, height;
     double focal_mm, pixel_mm, distance_mm, sphere_diameter_mm;
     int has_principal;
-    double principal[2];    /* continuous pixel coordinates */
-    double distortion[5];   /* OpenCV k1 k2 p1 p2 k3 */
-    int distorted;          /* any coefficient non-zero */
+    double principal[2];  /* continuous pixel coordinates */
+    double distortion[5]; /* OpenCV k1 k2 p1 p2 k3 */
+    int distorted;        /* any coefficient non-zero */
 } pp_camera;
 
 /* Preprocessing parameters (docs/interfaces.md, "Preprocessing"): version 1
@@ -75,15 +75,14 @@ int shim_probe_size(const unsigned char *buf, size_t len, long *w, long *h, char
 
 /* Decode an encoded image into m (8-bit, 1/3/4 channels kept as they are)
  * and describe it in *out. Refuses frames over max_pixels. */
-int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels,
-                pi_frame *out, char *err);
+int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *out,
+                char *err);
 
 /* Frame -> out[3*size*size] (float32 CHW, RGB), by p->version. Fills *c
  * (v2: bg is the fill colour). Errors: "no sphere found in frame", and for
  * v2 "two spheres in frame (...)", "sphere cut by the frame edge (...)",
  * "frame is WxH, the camera file's calibration is for WxH". */
-int shim_preprocess(const pi_frame *f, const pp_params *p, float *out,
-                    pp_circle *c, char *err);
+int shim_preprocess(const pi_frame *f, const pp_params *p, float *out, pp_circle *c, char *err);
 
 /* Write a frame to an image file (format from the extension). */
 int shim_save(const pi_frame *f, const char *path, char *err);

@@ -17,7 +17,7 @@
 
 #include "internal.h"
 
-#define MIN_TOKEN 16
+#define MIN_TOKEN  16
 #define OPEN_FLAGS (O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY)
 
 char *access_read_token(const char *path, char *err)
@@ -28,33 +28,40 @@ char *access_read_token(const char *path, char *err)
     size_t len;
     char *tok;
     int fd = open(path, OPEN_FLAGS);
-    if (fd < 0) { pi_seterr(err, "token_file(%s): %s", path, strerror(errno)); return NULL; }
+    if (fd < 0) {
+        pi_seterr(err, "token_file(%s): %s", path, strerror(errno));
+        return NULL;
+    }
     if (fstat(fd, &sb) < 0 || !S_ISREG(sb.st_mode)) {
         pi_seterr(err, "token_file(%s): not a regular file", path);
         close(fd);
         return NULL;
     }
     if (sb.st_mode & 0007) {
-        pi_seterr(err, "token_file(%s): readable by every user (mode %04o); chmod 600 or 640 it", path,
-                  (unsigned)(sb.st_mode & 07777));
+        pi_seterr(err, "token_file(%s): readable by every user (mode %04o); chmod 600 or 640 it",
+                  path, (unsigned)(sb.st_mode & 07777));
         close(fd);
         return NULL;
     }
     n = read(fd, buf, sizeof buf - 1);
     close(fd);
-    if (n < 0) { pi_seterr(err, "token_file(%s): %s", path, strerror(errno)); return NULL; }
+    if (n < 0) {
+        pi_seterr(err, "token_file(%s): %s", path, strerror(errno));
+        return NULL;
+    }
     buf[n] = '\0';
     len = strcspn(buf, "\r\n");
     buf[len] = '\0';
     for (size_t i = 0; i < len; i++) {
         if ((unsigned char)buf[i] <= ' ' || (unsigned char)buf[i] >= 0x7f) {
-            pi_seterr(err, "token_file(%s): the token must be printable ASCII without spaces", path);
+            pi_seterr(err, "token_file(%s): the token must be printable ASCII without spaces",
+                      path);
             return NULL;
         }
     }
     if (len < MIN_TOKEN) {
-        pi_seterr(err, "token_file(%s): the token on its first line must be at least %d characters", path,
-                  MIN_TOKEN);
+        pi_seterr(err, "token_file(%s): the token on its first line must be at least %d characters",
+                  path, MIN_TOKEN);
         return NULL;
     }
     tok = strdup(buf);
@@ -71,7 +78,10 @@ int access_init(access_policy *p, const pi_config *cfg, char *err)
         p->given = calloc(n, sizeof *p->given);
         p->canon = calloc(n, sizeof *p->canon);
         p->fd = calloc(n, sizeof *p->fd);
-        if (!p->given || !p->canon || !p->fd) { pi_seterr(err, "out of memory"); goto fail; }
+        if (!p->given || !p->canon || !p->fd) {
+            pi_seterr(err, "out of memory");
+            goto fail;
+        }
     }
     for (int i = 0; i < cfg->n_allow_dirs; i++) {
         const char *d = cfg->allow_dirs[i];
@@ -122,8 +132,10 @@ static const char *below(const char *path, const char *dir)
 {
     size_t n = strlen(dir);
     while (n > 1 && dir[n - 1] == '/') n--;
-    if (n == 1 && dir[0] == '/') n = 0;
-    else if (strncmp(path, dir, n) != 0 || path[n] != '/') return NULL;
+    if (n == 1 && dir[0] == '/')
+        n = 0;
+    else if (strncmp(path, dir, n) != 0 || path[n] != '/')
+        return NULL;
     while (path[n] == '/') n++;
     return path + n;
 }
@@ -135,8 +147,10 @@ static int open_resolved(const char *canon, const char *path)
     char *real = realpath(path, NULL);
     int fd = -1;
     if (!real) return -1;
-    if (below(real, canon)) fd = open(real, OPEN_FLAGS | O_NOFOLLOW);
-    else errno = EXDEV;
+    if (below(real, canon))
+        fd = open(real, OPEN_FLAGS | O_NOFOLLOW);
+    else
+        errno = EXDEV;
     free(real);
     return fd;
 }
@@ -144,8 +158,9 @@ static int open_resolved(const char *canon, const char *path)
 int access_open(const access_policy *p, const char *path, char *err)
 {
     if (p->n == 0) {
-        pi_seterr(err, "infer: reading files is off on this server (no allow_dir); send the image with "
-                       "\"frame N\" and its N bytes");
+        pi_seterr(err,
+                  "infer: reading files is off on this server (no allow_dir); send the image with "
+                  "\"frame N\" and its N bytes");
         return -1;
     }
     if (path[0] != '/') {
@@ -178,7 +193,8 @@ int access_token_ok(const access_policy *p, const char *tok)
     unsigned char diff = 0;
     if (!p->token) return 0;
     /* constant time in the token's content: no early exit */
-    for (size_t i = 0; i < p->token_len; i++) diff |= (unsigned char)(p->token[i] ^ (i < n ? tok[i] : 0));
+    for (size_t i = 0; i < p->token_len; i++)
+        diff |= (unsigned char)(p->token[i] ^ (i < n ? tok[i] : 0));
     return diff == 0 && n == p->token_len;
 }
 

@@ -9,11 +9,11 @@
 #include "config.h"
 
 typedef struct access_policy {
-    int n;          /* allowed directories (0: `infer PATH` is off) */
-    char **given;   /* each as configured */
-    char **canon;   /* each with its symbolic links resolved */
-    int *fd;        /* an O_PATH descriptor of each, opened at start */
-    char *token;    /* NULL when no token_file is configured */
+    int n;        /* allowed directories (0: `infer PATH` is off) */
+    char **given; /* each as configured */
+    char **canon; /* each with its symbolic links resolved */
+    int *fd;      /* an O_PATH descriptor of each, opened at start */
+    char *token;  /* NULL when no token_file is configured */
     size_t token_len;
 } access_policy;
 

@@ -47,9 +47,15 @@ static int add_allow_dir(pi_config *c, const char *v, char *err)
         return -1;
     }
     n = realloc(c->allow_dirs, (size_t)(c->n_allow_dirs + 1) * sizeof *n);
-    if (!n) { pi_seterr(err, "out of memory"); return -1; }
+    if (!n) {
+        pi_seterr(err, "out of memory");
+        return -1;
+    }
     c->allow_dirs = n;
-    if (!(n[c->n_allow_dirs] = strdup(v))) { pi_seterr(err, "out of memory"); return -1; }
+    if (!(n[c->n_allow_dirs] = strdup(v))) {
+        pi_seterr(err, "out of memory");
+        return -1;
+    }
     c->n_allow_dirs++;
     return 0;
 }
@@ -85,7 +91,10 @@ void config_free(pi_config *c)
 static int set_str(char **dst, const char *v, char *err)
 {
     char *s = strdup(v);
-    if (!s) { pi_seterr(err, "out of memory"); return -1; }
+    if (!s) {
+        pi_seterr(err, "out of memory");
+        return -1;
+    }
     free(*dst);
     *dst = s;
     return 0;
@@ -115,8 +124,11 @@ static int set_int(int *dst, const char *key, const char *v, long lo, long hi, c
 
 static int set_bool(int *dst, const char *key, const char *v, char *err)
 {
-    if (!strcasecmp(v, "yes") || !strcasecmp(v, "true") || !strcmp(v, "1") || !strcasecmp(v, "on")) *dst = 1;
-    else if (!strcasecmp(v, "no") || !strcasecmp(v, "false") || !strcmp(v, "0") || !strcasecmp(v, "off")) *dst = 0;
+    if (!strcasecmp(v, "yes") || !strcasecmp(v, "true") || !strcmp(v, "1") || !strcasecmp(v, "on"))
+        *dst = 1;
+    else if (!strcasecmp(v, "no") || !strcasecmp(v, "false") || !strcmp(v, "0") ||
+             !strcasecmp(v, "off"))
+        *dst = 0;
     else {
         pi_seterr(err, "%s: expected yes or no, got \"%.64s\"", key, v);
         return -1;
@@ -150,9 +162,13 @@ int config_set(pi_config *c, const char *key_in, const char *v, char *err)
     if (!strcmp(key, "token_file")) return set_str(&c->token_file, v, err);
     if (!strcmp(key, "workers")) return set_int(&c->workers, key, v, 1, 64, err);
     if (!strcmp(key, "max_clients")) return set_int(&c->max_clients, key, v, 1, 4096, err);
-    if (!strcmp(key, "idle_timeout_ms")) return set_int(&c->idle_timeout_ms, key, v, 100, 86400000, err);
-    if (!strcmp(key, "max_file_bytes")) return set_long(&c->max_file_bytes, key, v, 1024, 1L << 31, err);
-    pi_seterr(err, "unknown key \"%.64s\" (the keys: poseinfer --help, and docs/poseinfer.md, \"Config file\")",
+    if (!strcmp(key, "idle_timeout_ms"))
+        return set_int(&c->idle_timeout_ms, key, v, 100, 86400000, err);
+    if (!strcmp(key, "max_file_bytes"))
+        return set_long(&c->max_file_bytes, key, v, 1024, 1L << 31, err);
+    pi_seterr(err,
+              "unknown key \"%.64s\" (the keys: poseinfer --help, and docs/poseinfer.md, \"Config "
+              "file\")",
               key_in);
     return -1;
 }

@@ -4,30 +4,31 @@
 #define PI_CONFIG_H
 
 typedef struct pi_config {
-    char *model;        /* model = FILE.onnx */
-    char *serve;        /* serve = unix:PATH | tcp:127.0.0.1:PORT */
-    char *camera;       /* camera = /dev/video0 | 0 | gst:... | unix:PATH */
-    char *camera_file;  /* camera_file = FILE: camera file for a sphere-crop-v2 model (radius, lens) */
-    char *dump_tensor;  /* (flag only) write the input tensor of one image */
-    int continuous;     /* continuous = yes|no: capture mode */
-    long count;         /* count = N: frames in continuous mode (0 = until stopped) */
-    int interval_ms;    /* interval_ms = N: pause between continuous frames */
-    int threads;        /* threads = N: ONNX Runtime intra-op threads */
-    int warmup;         /* warmup = N: warm-up runs at model load */
-    long max_pixels;    /* max_pixels = N: refuse larger frames */
-    int timeout_ms;     /* timeout_ms = N: frame-server timeout */
-    int timings;        /* timings = yes|no: add decode/preprocess/infer ms */
-    int refine;         /* refine = yes|no: refine against the model's texture (docs/refine.md) */
+    char *model;  /* model = FILE.onnx */
+    char *serve;  /* serve = unix:PATH | tcp:127.0.0.1:PORT */
+    char *camera; /* camera = /dev/video0 | 0 | gst:... | unix:PATH */
+    char *
+        camera_file; /* camera_file = FILE: camera file for a sphere-crop-v2 model (radius, lens) */
+    char *dump_tensor; /* (flag only) write the input tensor of one image */
+    int continuous;    /* continuous = yes|no: capture mode */
+    long count;        /* count = N: frames in continuous mode (0 = until stopped) */
+    int interval_ms;   /* interval_ms = N: pause between continuous frames */
+    int threads;       /* threads = N: ONNX Runtime intra-op threads */
+    int warmup;        /* warmup = N: warm-up runs at model load */
+    long max_pixels;   /* max_pixels = N: refuse larger frames */
+    int timeout_ms;    /* timeout_ms = N: frame-server timeout */
+    int timings;       /* timings = yes|no: add decode/preprocess/infer ms */
+    int refine;        /* refine = yes|no: refine against the model's texture (docs/refine.md) */
     /* The daemon as a shared service (docs/poseinfer.md, "Who may ask for what"). */
     int socket_mode;    /* socket_mode = 0660: permissions of the unix: socket */
     char *socket_group; /* socket_group = NAME|GID: group of the unix: socket */
     char **allow_dirs;  /* allow_dir = DIR (repeatable): where `infer PATH` may read */
     int n_allow_dirs;
-    int tcp_remote;     /* tcp_remote = yes|no: a tcp: address other than loopback */
-    char *token_file;   /* token_file = FILE: TCP clients first send "auth TOKEN" */
+    int tcp_remote;   /* tcp_remote = yes|no: a tcp: address other than loopback */
+    char *token_file; /* token_file = FILE: TCP clients first send "auth TOKEN" */
     /* Bounds against a client that would hold the daemon. */
-    int workers;        /* workers = N: threads that infer frames (default 2) */
-    int max_clients;    /* max_clients = N: connections at once (default 64) */
+    int workers;         /* workers = N: threads that infer frames (default 2) */
+    int max_clients;     /* max_clients = N: connections at once (default 64) */
     int idle_timeout_ms; /* idle_timeout_ms = N: close a client idle this long */
     long max_file_bytes; /* max_file_bytes = N: refuse larger image files and frames */
 } pi_config;

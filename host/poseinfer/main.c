@@ -22,7 +22,7 @@
 #include "server.h"
 
 #define EXIT_SOME_FAILED 1
-#define EXIT_USAGE 2
+#define EXIT_USAGE       2
 
 static void usage(FILE *f)
 {
@@ -32,7 +32,8 @@ static void usage(FILE *f)
         "       poseinfer --model MODEL.onnx --camera SPEC --continuous [--count N]\n"
         "\n"
         "Measure the orientation of the sphere in each image: one JSON line per\n"
-        "image on stdout, {\"file\", \"x\", \"y\", \"z\" (degrees), \"ms\"} or {\"file\", \"error\"}.\n"
+        "image on stdout, {\"file\", \"x\", \"y\", \"z\" (degrees), \"ms\"} or {\"file\", "
+        "\"error\"}.\n"
         "A DIR stands for its image files, sorted. Exit 0: all images gave a pose;\n"
         "1: some failed; 2: usage or model error.\n"
         "\n"
@@ -41,7 +42,8 @@ static void usage(FILE *f)
         "  -c, --config FILE      read key = value settings from FILE\n"
         "  -s, --serve SPEC       serve the line protocol on unix:PATH or tcp:HOST:PORT [serve]\n"
         "      --camera SPEC      /dev/videoN, N, gst:PIPELINE or unix:PATH [camera]\n"
-        "      --camera-file FILE the camera's JSON file (sphere-crop-v2 models): its expected sphere\n"
+        "      --camera-file FILE the camera's JSON file (sphere-crop-v2 models): its expected "
+        "sphere\n"
         "                         radius, and its lens distortion undone first [camera_file]\n"
         "      --continuous       capture and print one JSON line per frame [continuous]\n"
         "      --count N          stop after N frames in --continuous (default 0: run on) [count]\n"
@@ -53,13 +55,18 @@ static void usage(FILE *f)
         "      --timings          add decode_ms, preprocess_ms, infer_ms, cx, cy, r [timings]\n"
         "      --no-refine        the network's angles, not refined against the model's texture\n"
         "                         (the residual and confidence still at them) [refine = no]\n"
-        "      --max-file-bytes N refuse larger image files and frames (default 67108864) [max_file_bytes]\n"
+        "      --max-file-bytes N refuse larger image files and frames (default 67108864) "
+        "[max_file_bytes]\n"
         "      --workers N        daemon threads that infer frames (default 2) [workers]\n"
-        "      --max-clients N    daemon connections at once; the next gets an error (default 64) [max_clients]\n"
-        "      --idle-timeout-ms N  close a daemon client with no request for N ms (default 60000)\n"
+        "      --max-clients N    daemon connections at once; the next gets an error (default 64) "
+        "[max_clients]\n"
+        "      --idle-timeout-ms N  close a daemon client with no request for N ms (default "
+        "60000)\n"
         "                         [idle_timeout_ms]\n"
-        "      --allow-dir DIR    the daemon's `infer PATH` may read files beneath DIR; repeat for\n"
-        "                         more (default none: frames come from the camera or the socket) [allow_dir]\n"
+        "      --allow-dir DIR    the daemon's `infer PATH` may read files beneath DIR; repeat "
+        "for\n"
+        "                         more (default none: frames come from the camera or the socket) "
+        "[allow_dir]\n"
         "      --dump-tensor OUT  write the network input of the one IMAGE as raw float32 [3,S,S]\n"
         "  -h, --help             this help\n"
         "\n"
@@ -98,8 +105,8 @@ static const struct option long_opts[] = {
 
 static int is_image_name(const char *name)
 {
-    static const char *ext[] = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp",
-                                ".pbm", ".pgm", ".ppm", ".pnm", NULL};
+    static const char *ext[] = {".png",  ".jpg", ".jpeg", ".bmp", ".tif", ".tiff",
+                                ".webp", ".pbm", ".pgm",  ".ppm", ".pnm", NULL};
     const char *dot = strrchr(name, '.');
     if (!dot || name[0] == '.') return 0;
     for (int i = 0; ext[i]; i++)
@@ -130,8 +137,10 @@ static int do_file(pi_ctx *ctx, const char *path, const pi_config *cfg, sbuf *s)
     char err[PI_ERR_LEN];
     pi_result r;
     int rc = pi_infer_file(ctx, path, &r, err);
-    if (rc < 0) error_json(s, "file", path, err);
-    else result_json(s, "file", path, &r, cfg->timings);
+    if (rc < 0)
+        error_json(s, "file", path, err);
+    else
+        result_json(s, "file", path, &r, cfg->timings);
     print_line(s);
     return rc;
 }
@@ -157,13 +166,19 @@ static int do_dir(pi_ctx *ctx, const char *dir, const pi_config *cfg, sbuf *s)
         if (!is_image_name(e->d_name)) continue;
         if (n == cap) {
             char **nn = realloc(names, (cap ? cap * 2 : 64) * sizeof *nn);
-            if (!nn) { oom = 1; break; }
+            if (!nn) {
+                oom = 1;
+                break;
+            }
             names = nn;
             cap = cap ? cap * 2 : 64;
         }
         len = strlen(dir) + strlen(e->d_name) + 2;
         p = malloc(len);
-        if (!p) { oom = 1; break; }
+        if (!p) {
+            oom = 1;
+            break;
+        }
         snprintf(p, len, "%s%s%s", dir, dir[strlen(dir) - 1] == '/' ? "" : "/", e->d_name);
         names[n++] = p;
     }
@@ -197,11 +212,17 @@ static int dump_tensor(pi_ctx *ctx, const char *image, const pi_config *cfg, sbu
     int rc = -1;
 
     buf = malloc(n * sizeof(float));
-    if (!buf) { pi_seterr(err, "dump-tensor: out of memory"); goto fail; }
+    if (!buf) {
+        pi_seterr(err, "dump-tensor: out of memory");
+        goto fail;
+    }
     if (pi_load_file(ctx, image, &f, err) < 0) goto fail;
     if (pi_preprocess_frame(ctx, &f, buf, n, &r, err) < 0) goto fail;
     out = fopen(cfg->dump_tensor, "wb");
-    if (!out) { pi_seterr(err, "fopen(%s): %s", cfg->dump_tensor, strerror(errno)); goto fail; }
+    if (!out) {
+        pi_seterr(err, "fopen(%s): %s", cfg->dump_tensor, strerror(errno));
+        goto fail;
+    }
     if (fwrite(buf, sizeof(float), n, out) != n || fclose(out) != 0) {
         out = NULL;
         pi_seterr(err, "write(%s): %s", cfg->dump_tensor, strerror(errno));
@@ -254,14 +275,20 @@ int main(int argc, char **argv)
         case 'c': continue;
         case 's': key = "serve"; break;
         case 1: key = "camera"; break;
-        case 2: key = "continuous"; val = "yes"; break;
+        case 2:
+            key = "continuous";
+            val = "yes";
+            break;
         case 3: key = "count"; break;
         case 4: key = "interval_ms"; break;
         case 5: key = "threads"; break;
         case 6: key = "warmup"; break;
         case 7: key = "max_pixels"; break;
         case 8: key = "timeout_ms"; break;
-        case 9: key = "timings"; val = "yes"; break;
+        case 9:
+            key = "timings";
+            val = "yes";
+            break;
         case 10:
             free(cfg.dump_tensor);
             cfg.dump_tensor = strdup(optarg);
@@ -277,8 +304,14 @@ int main(int argc, char **argv)
         case 14: key = "max_clients"; break;
         case 15: key = "idle_timeout_ms"; break;
         case 16: key = "camera_file"; break;
-        case 40: key = "refine"; val = "no"; break;
-        case 'h': usage(stdout); rc = 0; goto out;
+        case 40:
+            key = "refine";
+            val = "no";
+            break;
+        case 'h':
+            usage(stdout);
+            rc = 0;
+            goto out;
         default: usage(stderr); goto out;
         }
         if (config_set(&cfg, key, val, err) < 0) {
@@ -385,8 +418,10 @@ int main(int argc, char **argv)
         int failed = 0;
         for (int i = optind; i < argc; i++) {
             struct stat st;
-            if (stat(argv[i], &st) == 0 && S_ISDIR(st.st_mode)) failed += do_dir(a.ctx, argv[i], &cfg, &s);
-            else if (do_file(a.ctx, argv[i], &cfg, &s) < 0) failed++;
+            if (stat(argv[i], &st) == 0 && S_ISDIR(st.st_mode))
+                failed += do_dir(a.ctx, argv[i], &cfg, &s);
+            else if (do_file(a.ctx, argv[i], &cfg, &s) < 0)
+                failed++;
         }
         rc = failed ? EXIT_SOME_FAILED : 0;
     }

@@ -31,8 +31,8 @@ struct pool {
     app *a;
     pthread_mutex_t mu;
     pthread_cond_t cv;
-    job *head, *tail;        /* queued */
-    job *dhead, *dtail;      /* done */
+    job *head, *tail;   /* queued */
+    job *dhead, *dtail; /* done */
     int queued, stop, n, efd;
     worker *w;
 };
@@ -93,8 +93,10 @@ static void *worker_main(void *arg)
             if (pi_release_large(w->ctx, KEEP_BYTES) || big) malloc_trim(0);
         }
         pthread_mutex_lock(&p->mu);
-        if (p->dtail) p->dtail->next = j;
-        else p->dhead = j;
+        if (p->dtail)
+            p->dtail->next = j;
+        else
+            p->dhead = j;
         p->dtail = j;
         pthread_mutex_unlock(&p->mu);
         {
@@ -111,7 +113,10 @@ static void *worker_main(void *arg)
 pool *pool_start(app *a, int n, char *err)
 {
     pool *p = calloc(1, sizeof *p);
-    if (!p) { pi_seterr(err, "pool: out of memory"); return NULL; }
+    if (!p) {
+        pi_seterr(err, "pool: out of memory");
+        return NULL;
+    }
     p->a = a;
     p->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
     p->w = calloc((size_t)n, sizeof *p->w);
@@ -142,8 +147,10 @@ void pool_submit(pool *p, job *j)
 {
     j->next = NULL;
     pthread_mutex_lock(&p->mu);
-    if (p->tail) p->tail->next = j;
-    else p->head = j;
+    if (p->tail)
+        p->tail->next = j;
+    else
+        p->head = j;
     p->tail = j;
     p->queued++;
     pthread_cond_signal(&p->cv);
@@ -163,7 +170,10 @@ job *pool_done(pool *p)
     return j;
 }
 
-int pool_fd(const pool *p) { return p->efd; }
+int pool_fd(const pool *p)
+{
+    return p->efd;
+}
 
 int pool_queued(pool *p)
 {
@@ -182,8 +192,14 @@ void pool_stop(pool *p)
     pthread_cond_broadcast(&p->cv);
     pthread_mutex_unlock(&p->mu);
     for (int i = 0; i < p->n; i++) pthread_join(p->w[i].th, NULL);
-    for (job *j = p->head, *nx; j; j = nx) { nx = j->next; job_free(j); }
-    for (job *j = p->dhead, *nx; j; j = nx) { nx = j->next; job_free(j); }
+    for (job *j = p->head, *nx; j; j = nx) {
+        nx = j->next;
+        job_free(j);
+    }
+    for (job *j = p->dhead, *nx; j; j = nx) {
+        nx = j->next;
+        job_free(j);
+    }
     pthread_mutex_destroy(&p->mu);
     pthread_cond_destroy(&p->cv);
     close(p->efd);

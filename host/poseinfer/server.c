@@ -30,7 +30,7 @@
 #include "pool.h"
 
 #define MAX_LINE 4096
-#define MAX_OUT (1024 * 1024)
+#define MAX_OUT  (1024 * 1024)
 
 static volatile sig_atomic_t got_stop, got_hup;
 static int sig_pipe[2] = {-1, -1};
@@ -48,8 +48,10 @@ void log_msg(const char *fmt, ...)
 static void on_signal(int sig)
 {
     int saved = errno;
-    if (sig == SIGHUP) got_hup = 1;
-    else got_stop = 1;
+    if (sig == SIGHUP)
+        got_hup = 1;
+    else
+        got_stop = 1;
     if (sig_pipe[1] >= 0) {
         ssize_t w = write(sig_pipe[1], "x", 1); /* wake poll; a full pipe is fine */
         (void)w;
@@ -80,7 +82,8 @@ int signals_install(char *err)
 static void drain_sig_pipe(void)
 {
     char buf[64];
-    while (read(sig_pipe[0], buf, sizeof buf) > 0) {}
+    while (read(sig_pipe[0], buf, sizeof buf) > 0) {
+    }
 }
 
 /* ---- JSON lines ------------------------------------------------------------ */
@@ -94,18 +97,32 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
         sb_json_str(s, name);
         sb_puts(s, ", ");
     }
-    sb_puts(s, "\"x\": "); sb_json_num(s, r->x, 4);
-    sb_puts(s, ", \"y\": "); sb_json_num(s, r->y, 4);
-    sb_puts(s, ", \"z\": "); sb_json_num(s, r->z, 4);
-    sb_puts(s, ", \"ms\": "); sb_json_num(s, r->total_ms, 3);
+    sb_puts(s, "\"x\": ");
+    sb_json_num(s, r->x, 4);
+    sb_puts(s, ", \"y\": ");
+    sb_json_num(s, r->y, 4);
+    sb_puts(s, ", \"z\": ");
+    sb_json_num(s, r->z, 4);
+    sb_puts(s, ", \"ms\": ");
+    sb_json_num(s, r->total_ms, 3);
     /* the sphere's circle, conventions' continuous pixels (docs/poseinfer.md) */
-    sb_puts(s, ", \"circle\": ["); sb_json_num(s, r->cx + 0.5, 3); sb_puts(s, ", ");
-    sb_json_num(s, r->cy + 0.5, 3); sb_puts(s, ", "); sb_json_num(s, r->r, 3); sb_puts(s, "]");
+    sb_puts(s, ", \"circle\": [");
+    sb_json_num(s, r->cx + 0.5, 3);
+    sb_puts(s, ", ");
+    sb_json_num(s, r->cy + 0.5, 3);
+    sb_puts(s, ", ");
+    sb_json_num(s, r->r, 3);
+    sb_puts(s, "]");
     /* docs/refine.md: null when the model carries no texture */
-    sb_puts(s, r->has_confidence ? (r->confident ? ", \"confident\": true" : ", \"confident\": false")
-                                 : ", \"confident\": null");
-    sb_puts(s, ", \"residual\": "); sb_json_num(s, r->has_confidence ? r->residual : NAN, 5);
-    if (r->has_confidence && !r->confident) { sb_puts(s, ", \"note\": "); sb_json_str(s, r->note); }
+    sb_puts(s, r->has_confidence
+                   ? (r->confident ? ", \"confident\": true" : ", \"confident\": false")
+                   : ", \"confident\": null");
+    sb_puts(s, ", \"residual\": ");
+    sb_json_num(s, r->has_confidence ? r->residual : NAN, 5);
+    if (r->has_confidence && !r->confident) {
+        sb_puts(s, ", \"note\": ");
+        sb_json_str(s, r->note);
+    }
     if (r->has_rotmat) {
         sb_puts(s, ", \"rotmat\": [");
         for (int i = 0; i < 3; i++) {
@@ -119,15 +136,27 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
         sb_puts(s, "]");
     }
     if (timings) {
-        sb_puts(s, ", \"decode_ms\": "); sb_json_num(s, r->decode_ms, 3);
-        sb_puts(s, ", \"preprocess_ms\": "); sb_json_num(s, r->preprocess_ms, 3);
-        sb_puts(s, ", \"infer_ms\": "); sb_json_num(s, r->infer_ms, 3);
-        sb_puts(s, ", \"refine_ms\": "); sb_json_num(s, r->refine_ms, 3);
-        sb_puts(s, ", \"net\": ["); sb_json_num(s, r->net[0], 4); sb_puts(s, ", ");
-        sb_json_num(s, r->net[1], 4); sb_puts(s, ", "); sb_json_num(s, r->net[2], 4); sb_puts(s, "]");
-        sb_puts(s, ", \"cx\": "); sb_json_num(s, r->cx, 2);
-        sb_puts(s, ", \"cy\": "); sb_json_num(s, r->cy, 2);
-        sb_puts(s, ", \"r\": "); sb_json_num(s, r->r, 2);
+        sb_puts(s, ", \"decode_ms\": ");
+        sb_json_num(s, r->decode_ms, 3);
+        sb_puts(s, ", \"preprocess_ms\": ");
+        sb_json_num(s, r->preprocess_ms, 3);
+        sb_puts(s, ", \"infer_ms\": ");
+        sb_json_num(s, r->infer_ms, 3);
+        sb_puts(s, ", \"refine_ms\": ");
+        sb_json_num(s, r->refine_ms, 3);
+        sb_puts(s, ", \"net\": [");
+        sb_json_num(s, r->net[0], 4);
+        sb_puts(s, ", ");
+        sb_json_num(s, r->net[1], 4);
+        sb_puts(s, ", ");
+        sb_json_num(s, r->net[2], 4);
+        sb_puts(s, "]");
+        sb_puts(s, ", \"cx\": ");
+        sb_json_num(s, r->cx, 2);
+        sb_puts(s, ", \"cy\": ");
+        sb_json_num(s, r->cy, 2);
+        sb_puts(s, ", \"r\": ");
+        sb_json_num(s, r->r, 2);
     }
     sb_puts(s, "}");
 }
@@ -263,7 +292,8 @@ void proto_run(app *a, pi_ctx *ctx, job *j)
     case JOB_FRAME:
         sb_printf(out, "{\"bytes\": %zu, ", j->len);
         if (!j->img) {
-            sb_puts(out, "\"error\": \"frame: busy, too many image bytes on their way at once; try again\"}");
+            sb_puts(out, "\"error\": \"frame: busy, too many image bytes on their way at once; try "
+                         "again\"}");
         } else if (!ctx) {
             sb_puts(out, "\"error\": \"no model loaded\"}");
         } else if (pi_infer_memory(ctx, j->img, j->len, &r, err) < 0) {
@@ -368,7 +398,10 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
             error_json(out, "file", arg, "no model loaded");
         } else {
             j = job_new(JOB_INFER);
-            if (j && !(j->arg = strdup(arg))) { job_free(j); j = NULL; }
+            if (j && !(j->arg = strdup(arg))) {
+                job_free(j);
+                j = NULL;
+            }
             return to_worker(a, p, j, out);
         }
     } else if (IS("frame")) {
@@ -377,28 +410,35 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
         errno = 0;
         n = strtoull(arg, &end, 10);
         if (!*arg || *arg == '-' || errno || *skip_space(end) != '\0') {
-            error_json(out, NULL, NULL, "frame: expected \"frame N\" and then N bytes of an encoded image");
+            error_json(out, NULL, NULL,
+                       "frame: expected \"frame N\" and then N bytes of an encoded image");
             sb_puts(out, "\n");
             return 1; /* the bytes that follow cannot be told from commands */
         }
         if (n == 0 || n > (unsigned long long)pi_max_file_bytes) {
-            sb_printf(out, "{\"bytes\": %llu, \"error\": \"frame: %llu bytes, outside 1..%ld (max_file_bytes)\"}\n",
+            sb_printf(out,
+                      "{\"bytes\": %llu, \"error\": \"frame: %llu bytes, outside 1..%ld "
+                      "(max_file_bytes)\"}\n",
                       n, n, pi_max_file_bytes);
             return 1;
         }
         if (p) p->want = (size_t)n;
         return p ? 2 : 1;
     } else if (IS("grab")) {
-        if (!a->cam) error_json(out, NULL, NULL, "grab: no camera (start with --camera SPEC)");
-        else if (!have_model) error_json(out, NULL, NULL, "no model loaded");
-        else return to_worker(a, p, job_new(JOB_GRAB), out);
+        if (!a->cam)
+            error_json(out, NULL, NULL, "grab: no camera (start with --camera SPEC)");
+        else if (!have_model)
+            error_json(out, NULL, NULL, "no model loaded");
+        else
+            return to_worker(a, p, job_new(JOB_GRAB), out);
     } else if (IS("stats")) {
         pthread_mutex_lock(&a->lock);
         sb_puts(out, "{\"model\": ");
         sb_json_str(out, a->cfg->model);
-        sb_printf(out, ", \"uptime_s\": %.1f, \"requests\": %lu, \"frames\": %lu, \"errors\": %lu, "
-                       "\"reloads\": %lu, \"clients\": %d, \"workers\": %d, \"busy_refusals\": %lu, "
-                       "\"idle_closed\": %lu, \"ms_p50\": ",
+        sb_printf(out,
+                  ", \"uptime_s\": %.1f, \"requests\": %lu, \"frames\": %lu, \"errors\": %lu, "
+                  "\"reloads\": %lu, \"clients\": %d, \"workers\": %d, \"busy_refusals\": %lu, "
+                  "\"idle_closed\": %lu, \"ms_p50\": ",
                   (pi_now_ms() - a->started_ms) / 1000.0, a->requests, a->frames, a->errors,
                   a->reloads, a->clients, a->workers, a->busy_refusals, a->idle_closed);
         sb_json_num(out, app_percentile(a, 50), 3);
@@ -410,8 +450,10 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
         /* Loading a model stalls the daemon; only its own user (or root)
          * may ask, over the unix: socket; others have SIGHUP. */
         if (who->uid < 0 || (who->uid != (long)geteuid() && who->uid != 0)) {
-            pi_seterr(err, "reload: only the daemon's user (uid %ld) may reload, over the unix: "
-                      "socket, or with SIGHUP (systemctl reload poseinfer)", (long)geteuid());
+            pi_seterr(err,
+                      "reload: only the daemon's user (uid %ld) may reload, over the unix: "
+                      "socket, or with SIGHUP (systemctl reload poseinfer)",
+                      (long)geteuid());
             error_json(out, NULL, NULL, err);
         } else {
             return to_worker(a, p, job_new(JOB_RELOAD), out);
@@ -421,7 +463,8 @@ int proto_handle(app *a, peer *p, const char *line, sbuf *out)
         return 1;
     } else {
         char msg[160];
-        snprintf(msg, sizeof msg, "unknown command \"%.*s\"; " COMMANDS, (int)(cmdlen > 40 ? 40 : cmdlen), line);
+        snprintf(msg, sizeof msg, "unknown command \"%.*s\"; " COMMANDS,
+                 (int)(cmdlen > 40 ? 40 : cmdlen), line);
         error_json(out, NULL, NULL, msg);
     }
 #undef IS
@@ -464,7 +507,10 @@ int server_listen(const char *spec, const listen_opts *o, char *err)
         sa.sun_family = AF_UNIX;
         memcpy(sa.sun_path, path, strlen(path) + 1);
         fd = socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
-        if (fd < 0) { pi_seterr(err, "socket: %s", strerror(errno)); return -1; }
+        if (fd < 0) {
+            pi_seterr(err, "socket: %s", strerror(errno));
+            return -1;
+        }
         /* A socket file left by a daemon that died: remove it, but never
          * steal the address of one that still answers. */
         if (lstat(path, &st) == 0 && S_ISSOCK(st.st_mode)) {
@@ -497,7 +543,8 @@ int server_listen(const char *spec, const listen_opts *o, char *err)
                 goto fail;
             }
             if (chmod(path, (mode_t)o->mode) < 0) {
-                pi_seterr(err, "listen(%s): socket_mode %04o: %s", spec, (unsigned)o->mode, strerror(errno));
+                pi_seterr(err, "listen(%s): socket_mode %04o: %s", spec, (unsigned)o->mode,
+                          strerror(errno));
                 unlink(path);
                 goto fail;
             }
@@ -517,7 +564,8 @@ int server_listen(const char *spec, const listen_opts *o, char *err)
         port = strtol(colon + 1, &end, 10);
         memset(&sa, 0, sizeof sa);
         sa.sin_family = AF_INET;
-        if (*end || end == colon + 1 || port < 0 || port > 65535 || inet_pton(AF_INET, host, &sa.sin_addr) != 1) {
+        if (*end || end == colon + 1 || port < 0 || port > 65535 ||
+            inet_pton(AF_INET, host, &sa.sin_addr) != 1) {
             pi_seterr(err, "listen(%s): expected tcp:IPV4:PORT, e.g. tcp:127.0.0.1:7070", spec);
             return -1;
         }
@@ -526,17 +574,26 @@ int server_listen(const char *spec, const listen_opts *o, char *err)
          * unless the config says otherwise, and then only with a token. */
         if ((ntohl(sa.sin_addr.s_addr) >> 24) != 127) {
             if (!o->tcp_remote) {
-                pi_seterr(err, "listen(%s): not a loopback address; to serve other machines set tcp_remote = yes "
-                               "and token_file in the config", spec);
+                pi_seterr(err,
+                          "listen(%s): not a loopback address; to serve other machines set "
+                          "tcp_remote = yes "
+                          "and token_file in the config",
+                          spec);
                 return -1;
             }
             if (!o->has_token) {
-                pi_seterr(err, "listen(%s): tcp_remote needs token_file (clients then send \"auth TOKEN\")", spec);
+                pi_seterr(
+                    err,
+                    "listen(%s): tcp_remote needs token_file (clients then send \"auth TOKEN\")",
+                    spec);
                 return -1;
             }
         }
         fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
-        if (fd < 0) { pi_seterr(err, "socket: %s", strerror(errno)); return -1; }
+        if (fd < 0) {
+            pi_seterr(err, "socket: %s", strerror(errno));
+            return -1;
+        }
         setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
         if (bind(fd, (struct sockaddr *)&sa, sizeof sa) < 0) {
             pi_seterr(err, "bind(%s): %s", spec, strerror(errno));
@@ -558,29 +615,29 @@ fail:
 
 typedef struct client {
     int fd;
-    unsigned long serial;    /* which connection holds this slot */
+    unsigned long serial; /* which connection holds this slot */
     peer who;
     char in[MAX_LINE];
     size_t inlen;
-    unsigned char *img;      /* "frame N": the image coming in (NULL: over budget, discarded) */
+    unsigned char *img; /* "frame N": the image coming in (NULL: over budget, discarded) */
     size_t imglen;
-    size_t reserved;         /* image bytes counted against the server's budget */
+    size_t reserved; /* image bytes counted against the server's budget */
     sbuf out;
     size_t outoff;
-    int closing;             /* close once the replies are out */
-    int eof;                 /* the client sends no more */
-    int busy;                /* a job of its is with the workers */
-    double last;             /* ms: connected, or its last request came or was answered */
+    int closing; /* close once the replies are out */
+    int eof;     /* the client sends no more */
+    int busy;    /* a job of its is with the workers */
+    double last; /* ms: connected, or its last request came or was answered */
 } client;
 
 typedef struct server {
     app *a;
     pool *pool;
     client *cl;
-    int max;                 /* max_clients */
-    int idle_ms;             /* idle_timeout_ms */
+    int max;     /* max_clients */
+    int idle_ms; /* idle_timeout_ms */
     unsigned long serial;
-    size_t img_bytes;        /* image bytes received or waiting for a worker */
+    size_t img_bytes; /* image bytes received or waiting for a worker */
     size_t img_budget;
 } server;
 
@@ -695,8 +752,10 @@ static void client_lines(server *s, client *c)
         }
         memmove(c->in, c->in + n, c->inlen - n);
         c->inlen -= n;
-        if (rc == 1) c->closing = 1;
-        else if (rc == 2) image_start(s, c);
+        if (rc == 1)
+            c->closing = 1;
+        else if (rc == 2)
+            image_start(s, c);
         else if (rc == 3) {
             job *j = c->who.job;
             c->who.job = NULL;
@@ -714,8 +773,10 @@ static int client_read(server *s, client *c)
         if (c->who.want && c->inlen == 0) { /* straight into the image */
             char scratch[16384];
             size_t room = c->who.want - c->imglen;
-            if (c->img) r = recv(c->fd, c->img + c->imglen, room, 0);
-            else r = recv(c->fd, scratch, room < sizeof scratch ? room : sizeof scratch, 0);
+            if (c->img)
+                r = recv(c->fd, c->img + c->imglen, room, 0);
+            else
+                r = recv(c->fd, scratch, room < sizeof scratch ? room : sizeof scratch, 0);
             if (r > 0) {
                 c->imglen += (size_t)r;
                 if (c->imglen == c->who.want) image_complete(s, c);
@@ -728,7 +789,10 @@ static int client_read(server *s, client *c)
                 client_lines(s, c);
             }
         }
-        if (r == 0) { c->eof = 1; break; }
+        if (r == 0) {
+            c->eof = 1;
+            break;
+        }
         if (r < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) break;
         if (r < 0 && errno == EINTR) continue;
         if (r < 0) return -1;
@@ -746,7 +810,10 @@ static int client_read(server *s, client *c)
  * more and everything it asked is answered. */
 static void client_settle(server *s, client *c)
 {
-    if (client_flush(c) < 0) { client_close(s, c); return; }
+    if (client_flush(c) < 0) {
+        client_close(s, c);
+        return;
+    }
     if (c->busy || c->out.len) return;
     if (c->closing || (c->eof && !c->who.want)) client_close(s, c);
 }
@@ -788,8 +855,10 @@ static void accept_one(server *s, int lfd, int unix_sock)
     }
     {
         char msg[160];
-        int n = snprintf(msg, sizeof msg, "{\"error\": \"busy: %d clients connected, the limit (max_clients); "
-                                          "try again later\"}\n", s->max);
+        int n = snprintf(msg, sizeof msg,
+                         "{\"error\": \"busy: %d clients connected, the limit (max_clients); "
+                         "try again later\"}\n",
+                         s->max);
         ssize_t w = send(fd, msg, (size_t)n, MSG_NOSIGNAL | MSG_DONTWAIT); /* best effort */
         (void)w;
         close(fd);
@@ -807,8 +876,10 @@ static void jobs_done(server *s)
     for (; j; j = next) {
         next = j->next;
         if (j->client < 0) { /* SIGHUP */
-            if (j->failed) log_msg("SIGHUP: reload failed, keeping the old model: %s", j->arg ? j->arg : "");
-            else log_msg("SIGHUP: reloaded %s", s->a->cfg->model);
+            if (j->failed)
+                log_msg("SIGHUP: reload failed, keeping the old model: %s", j->arg ? j->arg : "");
+            else
+                log_msg("SIGHUP: reloaded %s", s->a->cfg->model);
         } else {
             client *c = &s->cl[j->client];
             if (c->fd >= 0 && c->serial == j->serial) {
@@ -836,7 +907,8 @@ static int close_idle(server *s, double now)
         if (c->fd < 0 || c->busy) continue;
         left = c->last + s->idle_ms - now;
         if (left <= 0) {
-            sb_printf(&c->out, "{\"error\": \"idle for %d ms (idle_timeout_ms); closing\"}\n", s->idle_ms);
+            sb_printf(&c->out, "{\"error\": \"idle for %d ms (idle_timeout_ms); closing\"}\n",
+                      s->idle_ms);
             client_flush(c);
             client_close(s, c);
             pthread_mutex_lock(&s->a->lock);
@@ -899,9 +971,15 @@ int server_run(app *a, int lfd, const char *spec, char *err)
     while (!got_stop) {
         int n = 0, r, wait;
         wait = close_idle(&s, pi_now_ms());
-        pfd[n].fd = sig_pipe[0]; pfd[n].events = POLLIN; idx[n++] = -1;
-        pfd[n].fd = lfd; pfd[n].events = POLLIN; idx[n++] = -2;
-        pfd[n].fd = pool_fd(s.pool); pfd[n].events = POLLIN; idx[n++] = -3;
+        pfd[n].fd = sig_pipe[0];
+        pfd[n].events = POLLIN;
+        idx[n++] = -1;
+        pfd[n].fd = lfd;
+        pfd[n].events = POLLIN;
+        idx[n++] = -2;
+        pfd[n].fd = pool_fd(s.pool);
+        pfd[n].events = POLLIN;
+        idx[n++] = -3;
         for (int i = 0; i < s.max; i++) {
             client *c = &s.cl[i];
             if (c->fd < 0) continue;
@@ -912,7 +990,11 @@ int server_run(app *a, int lfd, const char *spec, char *err)
         }
         r = poll(pfd, (nfds_t)n, wait); /* no client: no timeout, idle means asleep */
         if (r < 0 && errno == EINTR) continue;
-        if (r < 0) { pi_seterr(err, "poll: %s", strerror(errno)); rc = -1; break; }
+        if (r < 0) {
+            pi_seterr(err, "poll: %s", strerror(errno));
+            rc = -1;
+            break;
+        }
         for (int k = 0; k < n; k++) {
             if (!pfd[k].revents) continue;
             if (idx[k] == -1) {
@@ -965,8 +1047,10 @@ int continuous_run(app *a, char *err)
         int ok;
         if (got_hup) {
             got_hup = 0;
-            if (app_reload(a, e) < 0) log_msg("SIGHUP: reload failed, keeping the old model: %s", e);
-            else log_msg("SIGHUP: reloaded %s", a->cfg->model);
+            if (app_reload(a, e) < 0)
+                log_msg("SIGHUP: reload failed, keeping the old model: %s", e);
+            else
+                log_msg("SIGHUP: reloaded %s", a->cfg->model);
         }
         ok = pi_infer_camera(a->ctx, a->cam, &r, e) == 0;
         if (got_stop) break;

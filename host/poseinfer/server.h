@@ -20,36 +20,36 @@ typedef enum { JOB_INFER, JOB_FRAME, JOB_GRAB, JOB_RELOAD } job_kind;
 typedef struct job {
     struct job *next;
     job_kind kind;
-    int client;              /* slot of the connection in the server; -1: none (SIGHUP) */
-    unsigned long serial;    /* that connection (a slot is reused) */
-    char *arg;               /* JOB_INFER: the path; JOB_RELOAD: why it failed */
-    unsigned char *img;      /* JOB_FRAME: the encoded image, len bytes */
+    int client;           /* slot of the connection in the server; -1: none (SIGHUP) */
+    unsigned long serial; /* that connection (a slot is reused) */
+    char *arg;            /* JOB_INFER: the path; JOB_RELOAD: why it failed */
+    unsigned char *img;   /* JOB_FRAME: the encoded image, len bytes */
     size_t len;
-    sbuf out;                /* the reply line, with its newline */
-    int failed;              /* JOB_RELOAD: the load failed (reason in out) */
+    sbuf out;   /* the reply line, with its newline */
+    int failed; /* JOB_RELOAD: the load failed (reason in out) */
 } job;
 
 void job_free(job *j);
 
 /* The client at the other end of one connection. */
 typedef struct peer {
-    long uid;        /* its uid (SO_PEERCRED) on unix:, -1 on tcp: */
-    int authed;      /* sent the right "auth TOKEN" */
-    size_t want;     /* bytes of a "frame N" image still to come (proto_handle -> 2) */
-    job *job;        /* the work of the last request (proto_handle -> 3) */
+    long uid;    /* its uid (SO_PEERCRED) on unix:, -1 on tcp: */
+    int authed;  /* sent the right "auth TOKEN" */
+    size_t want; /* bytes of a "frame N" image still to come (proto_handle -> 2) */
+    job *job;    /* the work of the last request (proto_handle -> 3) */
 } peer;
 
 typedef struct app {
-    pi_ctx *ctx;                /* the model; workers use clones of it (pi_clone) */
+    pi_ctx *ctx; /* the model; workers use clones of it (pi_clone) */
     pi_camera *cam;
     const pi_config *cfg;
-    const access_policy *acc;   /* NULL: nothing allowed (no files, no token) */
+    const access_policy *acc; /* NULL: nothing allowed (no files, no token) */
     double started_ms;
     unsigned long requests, frames, errors, reloads, busy_refusals, idle_closed;
     int clients, workers;
-    double lat[LAT_WINDOW];     /* last frame times (ms), a ring */
+    double lat[LAT_WINDOW]; /* last frame times (ms), a ring */
     unsigned long nlat;
-    unsigned long gen;          /* bumped at each reload: workers re-clone */
+    unsigned long gen; /* bumped at each reload: workers re-clone */
     /* lock: ctx, gen and the counters (workers record frames); cam_lock: one
      * grab at a time; reload_lock: one model load at a time. Zeroed memory
      * is an unlocked mutex (glibc), so a zeroed app is ready. */
@@ -79,10 +79,10 @@ double app_percentile(const app *a, double pct);
 /* How to listen: the unix: socket's mode and group, and whether a tcp:
  * address may be other than loopback (then only with a token). */
 typedef struct listen_opts {
-    int mode;            /* permissions of the socket file (0660) */
-    const char *group;   /* its group, a name or a number; NULL: the daemon's */
-    int tcp_remote;      /* allow a non-loopback tcp: address */
-    int has_token;       /* a token is configured (needed for tcp_remote) */
+    int mode;          /* permissions of the socket file (0660) */
+    const char *group; /* its group, a name or a number; NULL: the daemon's */
+    int tcp_remote;    /* allow a non-loopback tcp: address */
+    int has_token;     /* a token is configured (needed for tcp_remote) */
 } listen_opts;
 
 /* Open a listening socket for "unix:PATH" or "tcp:HOST:PORT"; o NULL: mode

@@ -4,7 +4,8 @@
 #include <stdarg.h>
 #include <stdio.h>
 
-void rig_seterr(char *err, const char *fmt, ...) {
+void rig_seterr(char *err, const char *fmt, ...)
+{
     va_list ap;
     if (!err) return;
     va_start(ap, fmt);

@@ -4,7 +4,7 @@
 #ifndef RIG_ERR_H
 #define RIG_ERR_H
 
-#define RIG_ERR_LEN 256   /* size of every err[] buffer in host/rig */
+#define RIG_ERR_LEN 256 /* size of every err[] buffer in host/rig */
 
 /* printf into err (RIG_ERR_LEN bytes, truncated); nothing when err is NULL. */
 void rig_seterr(char *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));

@@ -9,7 +9,8 @@
 #include <string.h>
 
 /* Three comma-separated finite numbers, spaces allowed around them. */
-static int parse_xyz(const char *s, double v[3]) {
+static int parse_xyz(const char *s, double v[3])
+{
     const char *p = s;
     char *end;
     int i;
@@ -28,7 +29,8 @@ static int parse_xyz(const char *s, double v[3]) {
     return *p == '\0' ? 0 : -1;
 }
 
-int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err) {
+int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err)
+{
     FILE *f = NULL;
     char line[512];
     rig_pose *v = NULL;
@@ -48,7 +50,8 @@ int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err) {
             rig_seterr(err, "%s:%d: line too long", path, lineno);
             goto fail;
         }
-        while (len && (line[len - 1] == '\n' || line[len - 1] == '\r' || isspace((unsigned char)line[len - 1])))
+        while (len && (line[len - 1] == '\n' || line[len - 1] == '\r' ||
+                       isspace((unsigned char)line[len - 1])))
             line[--len] = '\0';
         if (len == 0 || line[0] == '#') continue;
         if (parse_xyz(line, xyz) != 0) {
@@ -97,15 +100,17 @@ fail:
 }
 
 /* splitmix64: tiny, well mixed, and the same on every platform. */
-static unsigned long long next_u64(unsigned long long *s) {
+static unsigned long long next_u64(unsigned long long *s)
+{
     unsigned long long z = (*s += 0x9E3779B97F4A7C15ULL);
     z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
     z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
     return z ^ (z >> 31);
 }
 
-int rig_plan_random(int n, const double range[3][2], unsigned long long seed,
-                    rig_pose **poses, char *err) {
+int rig_plan_random(int n, const double range[3][2], unsigned long long seed, rig_pose **poses,
+                    char *err)
+{
     rig_pose *v;
     unsigned long long st = seed;
     int i, a;
@@ -126,19 +131,20 @@ int rig_plan_random(int n, const double range[3][2], unsigned long long seed,
     }
     for (i = 0; i < n; i++) {
         for (a = 0; a < 3; a++) {
-            double u = (double)(next_u64(&st) >> 11) / 9007199254740992.0;   /* [0, 1) */
+            double u = (double)(next_u64(&st) >> 11) / 9007199254740992.0; /* [0, 1) */
             double x = range[a][0] + u * (range[a][1] - range[a][0]);
             x = round(x * 1000.0) / 1000.0;
             if (x < range[a][0]) x = range[a][0];
             if (x > range[a][1]) x = range[a][1];
-            v[i].xyz[a] = x == 0.0 ? 0.0 : x;   /* no -0 */
+            v[i].xyz[a] = x == 0.0 ? 0.0 : x; /* no -0 */
         }
     }
     *poses = v;
     return 0;
 }
 
-int rig_parse_range(const char *s, double *lo, double *hi) {
+int rig_parse_range(const char *s, double *lo, double *hi)
+{
     char *end;
     errno = 0;
     *lo = strtod(s, &end);

@@ -20,8 +20,8 @@ int rig_plan_load(const char *path, rig_pose **poses, int *n, char *err);
 /* n poses uniform in range[a][0]..range[a][1] per axis, rounded to 0.001 deg
  * (what the G-code line and the CSV carry), from a seeded generator so that
  * a seed gives the same plan on every machine. Returns 0 or -1 with err. */
-int rig_plan_random(int n, const double range[3][2], unsigned long long seed,
-                    rig_pose **poses, char *err);
+int rig_plan_random(int n, const double range[3][2], unsigned long long seed, rig_pose **poses,
+                    char *err);
 
 /* Parse "A,B" into lo, hi (lo <= hi). Returns 0 or -1. */
 int rig_parse_range(const char *s, double *lo, double *hi);

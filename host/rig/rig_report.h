@@ -13,44 +13,44 @@
 #include "rig_stats.h"
 
 #define RIG_STATUS_LEN 256
-#define RIG_NOTE_LEN 160
+#define RIG_NOTE_LEN   160
 
 typedef struct {
-    int index;                  /* 0-based position in the plan */
-    double cmd[3];              /* commanded pose, degrees (the truth of the errors) */
-    double mpos[3];             /* stage-reported machine position after the move */
-    double wpos[3];             /* stage-reported work position after the move */
-    double est[3];              /* estimate */
-    double err[3];              /* |wrap(est - cmd)| per axis */
-    double geo;                 /* geodesic error, degrees */
-    double cx, cy, r;           /* sphere found in the frame, pixels */
-    int has_conf;               /* 1: the model judged the estimate (it carries its texture) */
-    int confident;              /* with has_conf: 1 confident, 0 flagged */
-    double residual;            /* with has_conf: alignment residual (NaN: refinement could not run) */
-    char note[RIG_NOTE_LEN];    /* with has_conf and not confident: why, else "" */
+    int index;               /* 0-based position in the plan */
+    double cmd[3];           /* commanded pose, degrees (the truth of the errors) */
+    double mpos[3];          /* stage-reported machine position after the move */
+    double wpos[3];          /* stage-reported work position after the move */
+    double est[3];           /* estimate */
+    double err[3];           /* |wrap(est - cmd)| per axis */
+    double geo;              /* geodesic error, degrees */
+    double cx, cy, r;        /* sphere found in the frame, pixels */
+    int has_conf;            /* 1: the model judged the estimate (it carries its texture) */
+    int confident;           /* with has_conf: 1 confident, 0 flagged */
+    double residual;         /* with has_conf: alignment residual (NaN: refinement could not run) */
+    char note[RIG_NOTE_LEN]; /* with has_conf and not confident: why, else "" */
     double move_ms, settle_ms, grab_ms, decode_ms, preprocess_ms, infer_ms, refine_ms, pose_ms;
-    int ok;                     /* 1: estimate recorded; 0: see status */
-    char status[RIG_STATUS_LEN];/* "ok" or the reason this pose has no estimate */
-    char frame[128];            /* saved frame, relative to the output folder, or "" */
+    int ok;                      /* 1: estimate recorded; 0: see status */
+    char status[RIG_STATUS_LEN]; /* "ok" or the reason this pose has no estimate */
+    char frame[128];             /* saved frame, relative to the output folder, or "" */
 } rig_row;
 
 typedef struct {
     const char *port, *camera, *model, *plan;
     int planned, done, failed;
-    const char *stopped;        /* NULL, or why the run ended early */
+    const char *stopped; /* NULL, or why the run ended early */
     double elapsed_s;
     int settle_ms;
-    char started[32];           /* UTC, ISO 8601 */
-    const char *confidence;     /* the model's thresholds (metadata spherepose.confidence), or NULL */
-    int no_refine;              /* 1: the network's angles, judged unrefined (--no-refine) */
+    char started[32];       /* UTC, ISO 8601 */
+    const char *confidence; /* the model's thresholds (metadata spherepose.confidence), or NULL */
+    int no_refine;          /* 1: the network's angles, judged unrefined (--no-refine) */
 } rig_run_info;
 
 /* Measured poses split by the model's judgement. A model without its
  * texture judges nothing: every measured pose then counts as confident
  * (judged == 0 says so). */
 typedef struct {
-    rig_summary confident;      /* measured poses not flagged: the headline numbers */
-    rig_summary all;            /* every measured pose, flagged included */
+    rig_summary confident; /* measured poses not flagged: the headline numbers */
+    rig_summary all;       /* every measured pose, flagged included */
     int measured, judged, flagged;
 } rig_results;
 

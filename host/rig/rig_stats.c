@@ -7,14 +7,18 @@
 
 #define DEG (3.14159265358979323846 / 180.0)
 
-double rig_wrap_deg(double a) {
-    double w = fmod(a, 360.0);      /* (-360, 360) */
-    if (w > 180.0) w -= 360.0;
-    else if (w <= -180.0) w += 360.0;
+double rig_wrap_deg(double a)
+{
+    double w = fmod(a, 360.0); /* (-360, 360) */
+    if (w > 180.0)
+        w -= 360.0;
+    else if (w <= -180.0)
+        w += 360.0;
     return w;
 }
 
-void rig_euler_to_matrix(const double xyz[3], double R[3][3]) {
+void rig_euler_to_matrix(const double xyz[3], double R[3][3])
+{
     double cx = cos(xyz[0] * DEG), sx = sin(xyz[0] * DEG);
     double cy = cos(xyz[1] * DEG), sy = sin(xyz[1] * DEG);
     double cz = cos(xyz[2] * DEG), sz = sin(xyz[2] * DEG);
@@ -30,12 +34,14 @@ void rig_euler_to_matrix(const double xyz[3], double R[3][3]) {
     R[2][2] = cy * cx;
 }
 
-void rig_pose_errors(const double pred[3], const double truth[3], double e[3]) {
+void rig_pose_errors(const double pred[3], const double truth[3], double e[3])
+{
     int i;
     for (i = 0; i < 3; i++) e[i] = fabs(rig_wrap_deg(pred[i] - truth[i]));
 }
 
-double rig_geodesic_deg(const double pred[3], const double truth[3]) {
+double rig_geodesic_deg(const double pred[3], const double truth[3])
+{
     double P[3][3], T[3][3], tr = 0, c;
     int i, k;
     rig_euler_to_matrix(pred, P);
@@ -49,12 +55,14 @@ double rig_geodesic_deg(const double pred[3], const double truth[3]) {
     return acos(c) / DEG;
 }
 
-static int cmp_double(const void *a, const void *b) {
+static int cmp_double(const void *a, const void *b)
+{
     double x = *(const double *)a, y = *(const double *)b;
     return (x > y) - (x < y);
 }
 
-double rig_percentile(const double *v, int n, double p) {
+double rig_percentile(const double *v, int n, double p)
+{
     double pos, frac;
     int lo;
     if (n <= 0) return 0.0;
@@ -67,7 +75,8 @@ double rig_percentile(const double *v, int n, double p) {
 }
 
 /* Statistics of one column (stride apart in data). */
-static int column_stats(const double *data, int stride, int n, rig_axis_stats *a, double *tmp) {
+static int column_stats(const double *data, int stride, int n, rig_axis_stats *a, double *tmp)
+{
     double sum = 0, sq = 0, iqr, lo, hi;
     int i;
     memset(a, 0, sizeof(*a));
@@ -104,7 +113,8 @@ static int column_stats(const double *data, int stride, int n, rig_axis_stats *a
     return 0;
 }
 
-int rig_summarise(const double *e, const double *geo, int n, rig_summary *s) {
+int rig_summarise(const double *e, const double *geo, int n, rig_summary *s)
+{
     double *tmp, sum = 0, sq = 0;
     int i, k;
     memset(s, 0, sizeof(*s));

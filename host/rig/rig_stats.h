@@ -16,16 +16,16 @@ void rig_pose_errors(const double pred[3], const double truth[3], double e[3]);
 double rig_geodesic_deg(const double pred[3], const double truth[3]);
 
 typedef struct {
-    double err, std, rmse, max;       /* Err_a, Std_a (population), RMSE_a, Max_a */
-    double q1, median, q3;            /* quartiles (linear interpolation), for the box plot */
-    double whisk_lo, whisk_hi;        /* box-plot whiskers: extreme values within 1.5 IQR */
+    double err, std, rmse, max; /* Err_a, Std_a (population), RMSE_a, Max_a */
+    double q1, median, q3;      /* quartiles (linear interpolation), for the box plot */
+    double whisk_lo, whisk_hi;  /* box-plot whiskers: extreme values within 1.5 IQR */
 } rig_axis_stats;
 
 typedef struct {
-    int n;                            /* samples */
-    rig_axis_stats axis[3];           /* X, Y, Z */
-    rig_axis_stats geo;               /* geodesic error */
-    double mae, rmse;                 /* over all samples and axes */
+    int n;                  /* samples */
+    rig_axis_stats axis[3]; /* X, Y, Z */
+    rig_axis_stats geo;     /* geodesic error */
+    double mae, rmse;       /* over all samples and axes */
 } rig_summary;
 
 /* Statistics of n samples: e is n x 3 (row-major), geo has n entries (may be

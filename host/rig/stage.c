@@ -13,10 +13,11 @@
 #include <unistd.h>
 
 #define RT_STATUS '?'
-#define RT_HOLD '!'
-#define RT_RESET 0x18
+#define RT_HOLD   '!'
+#define RT_RESET  0x18
 
-static long long now_ms(void) {
+static long long now_ms(void)
+{
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (long long)ts.tv_sec * 1000 + ts.tv_nsec / 1000000;
@@ -24,19 +25,23 @@ static long long now_ms(void) {
 
 /* Trace one line of traffic with control bytes escaped, so a log of a
  * garbled exchange shows what really came. */
-static void trace(stage *s, const char *dir, const char *line) {
+static void trace(stage *s, const char *dir, const char *line)
+{
     const unsigned char *p;
     if (!s->o.log) return;
     fputs(dir, s->o.log);
     for (p = (const unsigned char *)line; *p; p++) {
-        if (*p >= 0x20 && *p < 0x7f) fputc(*p, s->o.log);
-        else fprintf(s->o.log, "\\x%02x", *p);
+        if (*p >= 0x20 && *p < 0x7f)
+            fputc(*p, s->o.log);
+        else
+            fprintf(s->o.log, "\\x%02x", *p);
     }
     fputc('\n', s->o.log);
     fflush(s->o.log);
 }
 
-void stage_opts_default(stage_opts *o) {
+void stage_opts_default(stage_opts *o)
+{
     memset(o, 0, sizeof(*o));
     o->baud = 115200;
     o->banner_timeout_ms = 5000;
@@ -50,7 +55,10 @@ void stage_opts_default(stage_opts *o) {
 
 /* ---- ports ------------------------------------------------------------ */
 
-static const struct { int vid, pid; const char *what; } arduino_ids[] = {
+static const struct {
+    int vid, pid;
+    const char *what;
+} arduino_ids[] = {
     {0x2341, 0x0043, "Arduino Uno"},
     {0x2341, 0x0001, "Arduino Uno (early)"},
     {0x2A03, 0x0043, "Arduino Uno (arduino.org)"},
@@ -59,14 +67,16 @@ static const struct { int vid, pid; const char *what; } arduino_ids[] = {
     {0x0403, 0x6001, "FTDI FT232 (clone)"},
 };
 
-static const char *arduino_name(int vid, int pid) {
+static const char *arduino_name(int vid, int pid)
+{
     size_t i;
     for (i = 0; i < sizeof(arduino_ids) / sizeof(arduino_ids[0]); i++)
         if (arduino_ids[i].vid == vid && arduino_ids[i].pid == pid) return arduino_ids[i].what;
     return NULL;
 }
 
-int stage_list_ports(FILE *out, char *err) {
+int stage_list_ports(FILE *out, char *err)
+{
     struct sp_port **ports = NULL;
     int i, n = 0;
     if (sp_list_ports(&ports) != SP_OK) {
@@ -89,7 +99,8 @@ int stage_list_ports(FILE *out, char *err) {
     return n;
 }
 
-int stage_find_arduino(char *path, int len, char *err) {
+int stage_find_arduino(char *path, int len, char *err)
+{
     struct sp_port **ports = NULL;
     int i, found = 0;
     if (sp_list_ports(&ports) != SP_OK) {
@@ -109,24 +120,23 @@ int stage_find_arduino(char *path, int len, char *err) {
     sp_free_port_list(ports);
     if (!found) {
         rig_seterr(err, "stage_find_arduino: no serial port with a known Arduino USB VID:PID "
-                    "(2341:0043, 2341:0001, 1A86:7523, ...); give --port PATH");
+                        "(2341:0043, 2341:0001, 1A86:7523, ...); give --port PATH");
         return -1;
     }
     return 0;
 }
 
 /* Open through libserialport: the path for real USB/UART ports. */
-static int open_libserialport(stage *s, char *why, size_t whylen) {
+static int open_libserialport(stage *s, char *why, size_t whylen)
+{
     struct sp_port *p = NULL;
     enum sp_return r;
     int fd = -1;
 
     if ((r = sp_get_port_by_name(s->path, &p)) != SP_OK) goto fail;
     if ((r = sp_open(p, SP_MODE_READ_WRITE)) != SP_OK) goto fail;
-    if ((r = sp_set_baudrate(p, s->o.baud)) != SP_OK ||
-        (r = sp_set_bits(p, 8)) != SP_OK ||
-        (r = sp_set_parity(p, SP_PARITY_NONE)) != SP_OK ||
-        (r = sp_set_stopbits(p, 1)) != SP_OK ||
+    if ((r = sp_set_baudrate(p, s->o.baud)) != SP_OK || (r = sp_set_bits(p, 8)) != SP_OK ||
+        (r = sp_set_parity(p, SP_PARITY_NONE)) != SP_OK || (r = sp_set_stopbits(p, 1)) != SP_OK ||
         (r = sp_set_flowcontrol(p, SP_FLOWCONTROL_NONE)) != SP_OK) {
         sp_close(p);
         goto fail;
@@ -141,17 +151,17 @@ static int open_libserialport(stage *s, char *why, size_t whylen) {
     s->sp = p;
     s->fd = fd;
     return 0;
-fail:
-    {
-        char *m = sp_last_error_message();
-        snprintf(why, whylen, "%s", (r == SP_ERR_FAIL && m) ? m : "not a port libserialport handles");
-        sp_free_error_message(m);
-    }
+fail : {
+    char *m = sp_last_error_message();
+    snprintf(why, whylen, "%s", (r == SP_ERR_FAIL && m) ? m : "not a port libserialport handles");
+    sp_free_error_message(m);
+}
     if (p) sp_free_port(p);
     return -1;
 }
 
-static speed_t baud_const(int baud) {
+static speed_t baud_const(int baud)
+{
     switch (baud) {
     case 9600: return B9600;
     case 19200: return B19200;
@@ -165,7 +175,8 @@ static speed_t baud_const(int baud) {
 /* Open with plain termios: pseudo-terminals (the simulated stage) and any
  * tty libserialport refuses. Raw 8N1, and no TCSAFLUSH: a flush would drop
  * a banner the controller already wrote. */
-static int open_termios(stage *s, char *err) {
+static int open_termios(stage *s, char *err)
+{
     struct termios t;
     int fd = open(s->path, O_RDWR | O_NOCTTY | O_NONBLOCK);
     if (fd == -1) {
@@ -194,7 +205,8 @@ static int open_termios(stage *s, char *err) {
     return 0;
 }
 
-void stage_close(stage *s) {
+void stage_close(stage *s)
+{
     if (s->sp) {
         sp_close((struct sp_port *)s->sp);
         sp_free_port((struct sp_port *)s->sp);
@@ -207,13 +219,15 @@ void stage_close(stage *s) {
 
 /* ---- bytes and lines -------------------------------------------------- */
 
-static int vanished(stage *s, const char *call, char *err, int e) {
+static int vanished(stage *s, const char *call, char *err, int e)
+{
     rig_seterr(err, "%s(%s): port vanished (%s)", call, s->path, e ? strerror(e) : "hang-up");
     s->dead = 1;
     return -1;
 }
 
-static int write_all(stage *s, const char *buf, size_t len, char *err) {
+static int write_all(stage *s, const char *buf, size_t len, char *err)
+{
     long long deadline = now_ms() + s->o.reply_timeout_ms;
     size_t off = 0;
     if (s->dead || s->fd < 0) {
@@ -231,7 +245,8 @@ static int write_all(stage *s, const char *buf, size_t len, char *err) {
             struct pollfd pfd = {s->fd, POLLOUT, 0};
             long long left = deadline - now_ms();
             if (left <= 0) {
-                rig_seterr(err, "write(%s): output blocked for %d ms", s->path, s->o.reply_timeout_ms);
+                rig_seterr(err, "write(%s): output blocked for %d ms", s->path,
+                           s->o.reply_timeout_ms);
                 return -1;
             }
             if (poll(&pfd, 1, (int)left) == 1 && (pfd.revents & (POLLHUP | POLLERR)))
@@ -244,7 +259,8 @@ static int write_all(stage *s, const char *buf, size_t len, char *err) {
 }
 
 /* Take one complete line out of rbuf; 1 when one was there. */
-static int take_line(stage *s, char *line, size_t size) {
+static int take_line(stage *s, char *line, size_t size)
+{
     char *nl = memchr(s->rbuf, '\n', s->rlen);
     size_t n, i, o = 0;
     if (!nl) {
@@ -257,7 +273,7 @@ static int take_line(stage *s, char *line, size_t size) {
     for (i = 0; i < n && o + 1 < size; i++) {
         char c = s->rbuf[i];
         if (c == '\n' || c == '\r') continue;
-        line[o++] = c ? c : '?';   /* a NUL would cut the C string short */
+        line[o++] = c ? c : '?'; /* a NUL would cut the C string short */
     }
     line[o] = '\0';
     memmove(s->rbuf, s->rbuf + n, s->rlen - n);
@@ -266,7 +282,8 @@ static int take_line(stage *s, char *line, size_t size) {
 }
 
 /* Book-keeping every received line gets, whoever waits for it. */
-static stage_line_kind note_line(stage *s, const char *line, int *code) {
+static stage_line_kind note_line(stage *s, const char *line, int *code)
+{
     char perr[RIG_ERR_LEN];
     int c = 0;
     stage_line_kind k = stage_parse_line(line, &c);
@@ -277,12 +294,8 @@ static stage_line_kind note_line(stage *s, const char *line, int *code) {
         snprintf(s->banner, sizeof(s->banner), "%s", line);
         s->reset_seen = 1;
         break;
-    case STAGE_LINE_ALARM:
-        s->last_alarm = c;
-        break;
-    case STAGE_LINE_ERROR:
-        s->last_error = c;
-        break;
+    case STAGE_LINE_ALARM: s->last_alarm = c; break;
+    case STAGE_LINE_ERROR: s->last_error = c; break;
     case STAGE_LINE_MSG:
         if (strstr(line, "to unlock")) s->needs_unlock = 1;
         /* "[MSG:EEPROM settings failed CRC check, defaults restored]" (or the
@@ -303,15 +316,15 @@ static stage_line_kind note_line(stage *s, const char *line, int *code) {
         }
         break;
     }
-    default:
-        break;
+    default: break;
     }
     return k;
 }
 
 /* Wait for one line until deadline (ms, monotonic). Returns 1 with a line,
  * 0 on timeout, -1 when the port vanished. */
-static int read_line(stage *s, char *line, size_t size, long long deadline, char *err) {
+static int read_line(stage *s, char *line, size_t size, long long deadline, char *err)
+{
     for (;;) {
         struct pollfd pfd;
         long long left;
@@ -332,7 +345,7 @@ static int read_line(stage *s, char *line, size_t size, long long deadline, char
         pfd.events = POLLIN;
         pfd.revents = 0;
         r = poll(&pfd, 1, (int)left);
-        if (r == -1 && errno == EINTR) continue;   /* the loop top sees a cancel */
+        if (r == -1 && errno == EINTR) continue; /* the loop top sees a cancel */
         if (r == -1) {
             rig_seterr(err, "poll(%s): %s", s->path, strerror(errno));
             return -1;
@@ -354,7 +367,8 @@ static int read_line(stage *s, char *line, size_t size, long long deadline, char
 
 /* Consume whatever already arrived, so that a late reply of an earlier,
  * failed command is never taken for the reply of the next one. */
-static int drain(stage *s, char *err) {
+static int drain(stage *s, char *err)
+{
     char line[256];
     int r;
     while ((r = read_line(s, line, sizeof(line), now_ms(), err)) == 1) {
@@ -364,16 +378,19 @@ static int drain(stage *s, char *err) {
     return r < 0 ? -1 : 0;
 }
 
-static int send_rt(stage *s, char byte, char *err) {
+static int send_rt(stage *s, char byte, char *err)
+{
     char b = byte;
-    if (s->o.log && byte != RT_STATUS) fprintf(s->o.log, "> \\x%02x (real-time)\n", (unsigned char)byte);
+    if (s->o.log && byte != RT_STATUS)
+        fprintf(s->o.log, "> \\x%02x (real-time)\n", (unsigned char)byte);
     return write_all(s, &b, 1, err);
 }
 
 /* ---- commands --------------------------------------------------------- */
 
 int stage_command(stage *s, const char *cmd, int timeout_ms,
-                  void (*on_line)(void *ctx, const char *line), void *ctx, char *err) {
+                  void (*on_line)(void *ctx, const char *line), void *ctx, char *err)
+{
     char buf[128], line[256], derr[RIG_ERR_LEN];
     long long deadline;
     size_t len = strlen(cmd);
@@ -408,8 +425,7 @@ int stage_command(stage *s, const char *cmd, int timeout_ms,
             return -1;
         }
         switch (note_line(s, line, &code)) {
-        case STAGE_LINE_OK:
-            return 0;
+        case STAGE_LINE_OK: return 0;
         case STAGE_LINE_ERROR:
             rig_seterr(err, "stage_command(%s): error:%d (%s)", cmd, code, stage_error_text(code));
             return -1;
@@ -417,11 +433,11 @@ int stage_command(stage *s, const char *cmd, int timeout_ms,
             rig_seterr(err, "stage_command(%s): ALARM:%d (%s)", cmd, code, stage_alarm_text(code));
             return -1;
         case STAGE_LINE_BANNER:
-            rig_seterr(err, "stage_command(%s): the controller reset before replying ('%s')", cmd, line);
+            rig_seterr(err, "stage_command(%s): the controller reset before replying ('%s')", cmd,
+                       line);
             return -1;
         case STAGE_LINE_EMPTY:
-        case STAGE_LINE_STATUS:
-            break;
+        case STAGE_LINE_STATUS: break;
         default:
             if (on_line) on_line(ctx, line);
             break;
@@ -429,7 +445,8 @@ int stage_command(stage *s, const char *cmd, int timeout_ms,
     }
 }
 
-int stage_status(stage *s, stage_status_report *st, char *err) {
+int stage_status(stage *s, stage_status_report *st, char *err)
+{
     char line[256], derr[RIG_ERR_LEN];
     long long deadline;
     if (drain(s, derr) != 0 || send_rt(s, RT_STATUS, derr) != 0) {
@@ -455,7 +472,8 @@ int stage_status(stage *s, stage_status_report *st, char *err) {
     }
 }
 
-int stage_wait_idle(stage *s, int timeout_ms, char *err) {
+int stage_wait_idle(stage *s, int timeout_ms, char *err)
+{
     char line[256], derr[RIG_ERR_LEN];
     long long start = now_ms(), deadline;
     int alarm0 = s->last_alarm;
@@ -470,7 +488,8 @@ int stage_wait_idle(stage *s, int timeout_ms, char *err) {
             return -1;
         }
         if (s->reset_seen) {
-            rig_seterr(err, "stage_wait_idle: the controller reset during motion ('%s')", s->banner);
+            rig_seterr(err, "stage_wait_idle: the controller reset during motion ('%s')",
+                       s->banner);
             return -1;
         }
         if (s->last_alarm && s->last_alarm != alarm0) {
@@ -481,7 +500,8 @@ int stage_wait_idle(stage *s, int timeout_ms, char *err) {
         if (strcmp(s->last.state, "Idle") == 0) return 0;
         if (strcmp(s->last.state, "Alarm") == 0) {
             rig_seterr(err, "stage_wait_idle: stage in Alarm%s%s", s->last_alarm ? ": " : "",
-                       s->last_alarm ? stage_alarm_text(s->last_alarm) : " (unlock with $X or home with $H)");
+                       s->last_alarm ? stage_alarm_text(s->last_alarm)
+                                     : " (unlock with $X or home with $H)");
             return -1;
         }
         if (strcmp(s->last.state, "Check") == 0) {
@@ -489,8 +509,9 @@ int stage_wait_idle(stage *s, int timeout_ms, char *err) {
             return -1;
         }
         if (now_ms() >= deadline) {
-            rig_seterr(err, "stage_wait_idle: still %s after %d ms (MPos %.3f,%.3f,%.3f)", s->last.state,
-                       timeout_ms, s->last.mpos[0], s->last.mpos[1], s->last.mpos[2]);
+            rig_seterr(err, "stage_wait_idle: still %s after %d ms (MPos %.3f,%.3f,%.3f)",
+                       s->last.state, timeout_ms, s->last.mpos[0], s->last.mpos[1],
+                       s->last.mpos[2]);
             return -1;
         }
         /* Between polls, keep reading so that an ALARM line is seen now. */
@@ -508,7 +529,8 @@ int stage_wait_idle(stage *s, int timeout_ms, char *err) {
     }
 }
 
-int stage_home(stage *s, char *err) {
+int stage_home(stage *s, char *err)
+{
     char derr[RIG_ERR_LEN];
     /* GRBL answers $H only when the cycle is over, so the deadline is the
      * homing one, not the reply one. */
@@ -522,7 +544,8 @@ int stage_home(stage *s, char *err) {
     return 0;
 }
 
-int stage_move(stage *s, const double xyz[STAGE_AXES], double feed, char *err) {
+int stage_move(stage *s, const double xyz[STAGE_AXES], double feed, char *err)
+{
     char line[96], a[24], b[24], c[24], f[24];
     int i;
     for (i = 0; i < STAGE_AXES; i++) {
@@ -535,13 +558,15 @@ int stage_move(stage *s, const double xyz[STAGE_AXES], double feed, char *err) {
     stage_fmt_number(b, sizeof(b), xyz[1]);
     stage_fmt_number(c, sizeof(c), xyz[2]);
     if (feed > 0)
-        snprintf(line, sizeof(line), "G90 G1 F%s X%s Y%s Z%s", stage_fmt_number(f, sizeof(f), feed), a, b, c);
+        snprintf(line, sizeof(line), "G90 G1 F%s X%s Y%s Z%s", stage_fmt_number(f, sizeof(f), feed),
+                 a, b, c);
     else
         snprintf(line, sizeof(line), "G90 G0 X%s Y%s Z%s", a, b, c);
     return stage_command(s, line, 0, NULL, NULL, err);
 }
 
-int stage_move_wait(stage *s, const double xyz[STAGE_AXES], double feed, char *err) {
+int stage_move_wait(stage *s, const double xyz[STAGE_AXES], double feed, char *err)
+{
     char derr[RIG_ERR_LEN];
     if (stage_move(s, xyz, feed, err) != 0) return -1;
     /* G4 P0 is GRBL's sync barrier: its ok comes once the planner is empty.
@@ -560,7 +585,8 @@ struct settings_ctx {
     int max, n, bad;
 };
 
-static void collect_setting(void *ctx, const char *line) {
+static void collect_setting(void *ctx, const char *line)
+{
     struct settings_ctx *c = ctx;
     char perr[RIG_ERR_LEN];
     int n;
@@ -577,7 +603,8 @@ static void collect_setting(void *ctx, const char *line) {
     }
 }
 
-int stage_get_settings(stage *s, stage_setting *out, int max, int *n, char *err) {
+int stage_get_settings(stage *s, stage_setting *out, int max, int *n, char *err)
+{
     struct settings_ctx c = {out, max, 0, 0};
     if (stage_command(s, "$$", 0, collect_setting, &c, err) != 0) return -1;
     if (c.bad) {
@@ -588,7 +615,8 @@ int stage_get_settings(stage *s, stage_setting *out, int max, int *n, char *err)
     return 0;
 }
 
-int stage_set_setting(stage *s, int n, double value, char *err) {
+int stage_set_setting(stage *s, int n, double value, char *err)
+{
     char line[64], v[32];
     if (n < 0 || n > 9999) {
         rig_seterr(err, "stage_set_setting: setting number %d out of range", n);
@@ -598,14 +626,16 @@ int stage_set_setting(stage *s, int n, double value, char *err) {
     return stage_command(s, line, 0, NULL, NULL, err);
 }
 
-int stage_unlock(stage *s, char *err) {
+int stage_unlock(stage *s, char *err)
+{
     if (stage_command(s, "$X", 0, NULL, NULL, err) != 0) return -1;
     s->last_alarm = 0;
     s->needs_unlock = 0;
     return 0;
 }
 
-int stage_feed_hold(stage *s, char *err) {
+int stage_feed_hold(stage *s, char *err)
+{
     char derr[RIG_ERR_LEN];
     if (send_rt(s, RT_HOLD, derr) != 0) {
         rig_seterr(err, "stage_feed_hold: %s", derr);
@@ -615,7 +645,8 @@ int stage_feed_hold(stage *s, char *err) {
 }
 
 /* Wait for a banner until the deadline. 1 seen, 0 not, -1 port vanished. */
-static int wait_banner(stage *s, int timeout_ms, char *err) {
+static int wait_banner(stage *s, int timeout_ms, char *err)
+{
     char line[256];
     long long deadline = now_ms() + timeout_ms;
     for (;;) {
@@ -630,7 +661,8 @@ static int wait_banner(stage *s, int timeout_ms, char *err) {
  * client, an answer to '?' probes sent after a short silence. A board still
  * in its bootloader takes the stray '?' as a reason to start the program.
  * 1 banner, 2 status report, 0 neither before the deadline, -1 vanished. */
-static int wait_alive(stage *s, int timeout_ms, char *err) {
+static int wait_alive(stage *s, int timeout_ms, char *err)
+{
     char line[256];
     long long deadline = now_ms() + timeout_ms, next_probe = now_ms() + 200;
     for (;;) {
@@ -649,7 +681,8 @@ static int wait_alive(stage *s, int timeout_ms, char *err) {
     }
 }
 
-int stage_reset(stage *s, char *err) {
+int stage_reset(stage *s, char *err)
+{
     char derr[RIG_ERR_LEN];
     int r;
     if (send_rt(s, RT_RESET, derr) != 0) goto fail;
@@ -657,7 +690,8 @@ int stage_reset(stage *s, char *err) {
     r = wait_banner(s, s->o.banner_timeout_ms, derr);
     if (r < 0) goto fail;
     if (r == 0) {
-        snprintf(derr, sizeof(derr), "no banner within %d ms after the reset", s->o.banner_timeout_ms);
+        snprintf(derr, sizeof(derr), "no banner within %d ms after the reset",
+                 s->o.banner_timeout_ms);
         goto fail;
     }
     s->reset_seen = 0;
@@ -670,7 +704,8 @@ fail:
     return -1;
 }
 
-int stage_recover(stage *s, int rehome, char *err) {
+int stage_recover(stage *s, int rehome, char *err)
+{
     char derr[RIG_ERR_LEN];
     int alarm = s->last_alarm;
     if (stage_reset(s, derr) != 0) goto fail;
@@ -684,9 +719,10 @@ int stage_recover(stage *s, int rehome, char *err) {
      * harmless code counts as a lost position. */
     if (alarm == 0 || stage_alarm_loses_position(alarm)) {
         if (!rehome) {
-            snprintf(derr, sizeof(derr), "stage in Alarm%s%s%s; the position may be lost: "
-                     "home it ($H) before measuring", alarm ? " (" : "",
-                     alarm ? stage_alarm_text(alarm) : "", alarm ? ")" : "");
+            snprintf(derr, sizeof(derr),
+                     "stage in Alarm%s%s%s; the position may be lost: "
+                     "home it ($H) before measuring",
+                     alarm ? " (" : "", alarm ? stage_alarm_text(alarm) : "", alarm ? ")" : "");
             goto fail;
         }
         if (stage_home(s, derr) != 0) goto fail;
@@ -704,7 +740,8 @@ fail:
  * ("G0 X" + "$X" = "G0 X$X", an error for a command that was fine). The line
  * break makes it a line of its own, and its reply (ok for an empty buffer,
  * error:N for junk) is read here, never taken for the next command's. */
-static int end_stray_line(stage *s, char *err) {
+static int end_stray_line(stage *s, char *err)
+{
     char line[256];
     long long deadline;
     int code;
@@ -719,35 +756,39 @@ static int end_stray_line(stage *s, char *err) {
             return -1;
         }
         switch (note_line(s, line, &code)) {
-        case STAGE_LINE_OK:
-            return 0;
+        case STAGE_LINE_OK: return 0;
         case STAGE_LINE_ERROR:
             if (s->o.log)
-                fprintf(s->o.log, "stage: bytes left on the line before this session were refused "
-                        "(error:%d)\n", code);
+                fprintf(s->o.log,
+                        "stage: bytes left on the line before this session were refused "
+                        "(error:%d)\n",
+                        code);
             s->last_error = 0;
             return 0;
-        default:
-            break;
+        default: break;
         }
     }
 }
 
-int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
+int stage_open(stage *s, const char *port, const stage_opts *o, char *err)
+{
     char why[RIG_ERR_LEN], derr[RIG_ERR_LEN];
     int r;
 
     memset(s, 0, sizeof(*s));
     s->fd = -1;
-    if (o) s->o = *o;
-    else stage_opts_default(&s->o);
+    if (o)
+        s->o = *o;
+    else
+        stage_opts_default(&s->o);
     if (strcmp(port, "auto") == 0) {
         if (stage_find_arduino(s->path, sizeof(s->path), err) != 0) return -1;
     } else {
         snprintf(s->path, sizeof(s->path), "%s", port);
     }
     if (open_libserialport(s, why, sizeof(why)) != 0) {
-        if (s->o.log) fprintf(s->o.log, "stage: libserialport: %s: %s; using termios\n", s->path, why);
+        if (s->o.log)
+            fprintf(s->o.log, "stage: libserialport: %s: %s; using termios\n", s->path, why);
         if (open_termios(s, err) != 0) return -1;
     } else if (s->o.log) {
         fprintf(s->o.log, "stage: opened %s with libserialport\n", s->path);
@@ -761,8 +802,10 @@ int stage_open(stage *s, const char *port, const stage_opts *o, char *err) {
     if (r < 0) goto fail;
     if (r == 0 && stage_reset(s, derr) != 0) {
         if (s->dead) goto fail;
-        snprintf(derr, sizeof(derr), "no GRBL banner within %d ms, no answer to '?' or to a "
-                 "soft reset (is this the stage, at %d baud?)", s->o.banner_timeout_ms, s->o.baud);
+        snprintf(derr, sizeof(derr),
+                 "no GRBL banner within %d ms, no answer to '?' or to a "
+                 "soft reset (is this the stage, at %d baud?)",
+                 s->o.banner_timeout_ms, s->o.baud);
         goto fail;
     }
     if (r == 2 && s->o.log) fprintf(s->o.log, "stage: no banner, but the controller answers\n");

@@ -20,15 +20,16 @@
 #define STAGE_MAX_SETTINGS 128
 
 typedef struct {
-    int baud;                 /* 115200 */
-    int banner_timeout_ms;    /* wait for "Grbl ..." after open or reset (an Uno's bootloader takes ~2 s) */
-    int reply_timeout_ms;     /* wait for ok/error after a command line */
-    int poll_ms;              /* period of '?' status queries while waiting for Idle */
-    int move_timeout_ms;      /* deadline of one move until Idle */
-    int home_timeout_ms;      /* deadline of a homing cycle */
-    int reset_on_open;        /* 1: always soft-reset after opening (clears a half-sent line) */
-    FILE *log;                /* traffic trace ("> line", "< line"), NULL for none */
-    volatile sig_atomic_t *cancel; /* when set non-zero (by a signal handler), waits end with "interrupted" */
+    int baud;              /* 115200 */
+    int banner_timeout_ms; /* wait for "Grbl ..." after open or reset (an Uno's bootloader takes ~2 s) */
+    int reply_timeout_ms; /* wait for ok/error after a command line */
+    int poll_ms;          /* period of '?' status queries while waiting for Idle */
+    int move_timeout_ms;  /* deadline of one move until Idle */
+    int home_timeout_ms;  /* deadline of a homing cycle */
+    int reset_on_open;    /* 1: always soft-reset after opening (clears a half-sent line) */
+    FILE *log;            /* traffic trace ("> line", "< line"), NULL for none */
+    volatile sig_atomic_t
+        *cancel; /* when set non-zero (by a signal handler), waits end with "interrupted" */
 } stage_opts;
 
 typedef struct {
@@ -37,24 +38,24 @@ typedef struct {
 } stage_setting;
 
 typedef struct {
-    int fd;                    /* the port; -1 when closed or vanished */
-    void *sp;                  /* struct sp_port * when libserialport opened it */
-    int via_termios;           /* 1 when opened with plain termios */
+    int fd;          /* the port; -1 when closed or vanished */
+    void *sp;        /* struct sp_port * when libserialport opened it */
+    int via_termios; /* 1 when opened with plain termios */
     char path[256];
     stage_opts o;
-    char banner[96];           /* last banner seen, "" if none */
-    char rbuf[512];            /* bytes received and not yet split into lines */
+    char banner[96]; /* last banner seen, "" if none */
+    char rbuf[512];  /* bytes received and not yet split into lines */
     size_t rlen;
-    int last_error;            /* N of the last error:N, 0 if none */
-    int last_alarm;            /* N of the last ALARM:N, 0 if none or cleared */
-    int reset_seen;            /* a banner arrived unasked: the controller restarted */
-    int needs_unlock;          /* the controller said "'$H'|'$X' to unlock" */
-    int defaults_restored;     /* the controller said its EEPROM failed its CRC check and it now runs on
+    int last_error;        /* N of the last error:N, 0 if none */
+    int last_alarm;        /* N of the last ALARM:N, 0 if none or cleared */
+    int reset_seen;        /* a banner arrived unasked: the controller restarted */
+    int needs_unlock;      /* the controller said "'$H'|'$X' to unlock" */
+    int defaults_restored; /* the controller said its EEPROM failed its CRC check and it now runs on
                                   defaults (steps/degree, limits, rates, offsets): not the rig's values */
-    char restored_msg[96];     /* that message, as it came */
-    double wco[STAGE_AXES];    /* last work offset seen in a status report */
-    stage_status_report last;  /* last status report */
-    int dead;                  /* the port vanished: every call fails fast */
+    char restored_msg[96]; /* that message, as it came */
+    double wco[STAGE_AXES];   /* last work offset seen in a status report */
+    stage_status_report last; /* last status report */
+    int dead;                 /* the port vanished: every call fails fast */
 } stage;
 
 /* Defaults for the options above. */

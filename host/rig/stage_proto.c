@@ -16,27 +16,31 @@
 
 #define NELEM(a) ((int)(sizeof(a) / sizeof((a)[0])))
 
-const char *stage_error_text(int code) {
-    if (code > 0 && code < NELEM(error_texts) && error_texts[code])
-        return error_texts[code];
+const char *stage_error_text(int code)
+{
+    if (code > 0 && code < NELEM(error_texts) && error_texts[code]) return error_texts[code];
     return "unknown error code";
 }
 
-const char *stage_alarm_text(int code) {
-    if (code > 0 && code < NELEM(alarm_texts) && alarm_texts[code])
-        return alarm_texts[code];
+const char *stage_alarm_text(int code)
+{
+    if (code > 0 && code < NELEM(alarm_texts) && alarm_texts[code]) return alarm_texts[code];
     return "unknown alarm code";
 }
 
-int stage_alarm_loses_position(int code) {
+int stage_alarm_loses_position(int code)
+{
     switch (code) {
-    case 2: case 4: case 5: return 0;
-    default: return 1;   /* unknown alarms: assume the worst */
+    case 2:
+    case 4:
+    case 5: return 0;
+    default: return 1; /* unknown alarms: assume the worst */
     }
 }
 
 /* Parse a decimal integer that fills the rest of s; -1 if it does not. */
-static int parse_code(const char *s, int *code) {
+static int parse_code(const char *s, int *code)
+{
     char *end;
     long v;
     if (!isdigit((unsigned char)*s)) return -1;
@@ -47,7 +51,8 @@ static int parse_code(const char *s, int *code) {
     return 0;
 }
 
-stage_line_kind stage_parse_line(const char *line, int *code) {
+stage_line_kind stage_parse_line(const char *line, int *code)
+{
     int c = 0;
     if (line[0] == '\0') return STAGE_LINE_EMPTY;
     if (strcmp(line, "ok") == 0) return STAGE_LINE_OK;
@@ -72,7 +77,8 @@ stage_line_kind stage_parse_line(const char *line, int *code) {
 }
 
 /* Parse "a,b,c" (exactly n finite numbers, nothing after) into v. */
-static int parse_vec(const char *s, size_t len, double *v, int n) {
+static int parse_vec(const char *s, size_t len, double *v, int n)
+{
     char tmp[96], *p, *end;
     int i;
     if (len == 0 || len >= sizeof(tmp)) return -1;
@@ -92,8 +98,9 @@ static int parse_vec(const char *s, size_t len, double *v, int n) {
     return (*end == '\0' || *end == ',') ? 0 : -1;
 }
 
-int stage_parse_status(const char *line, const double *known_wco,
-                       stage_status_report *st, char *err) {
+int stage_parse_status(const char *line, const double *known_wco, stage_status_report *st,
+                       char *err)
+{
     size_t len = strlen(line);
     const char *p, *end, *bar;
     int i, field = 0;
@@ -168,8 +175,10 @@ int stage_parse_status(const char *line, const double *known_wco,
      * over the last one seen, and none known means zero. */
     {
         double wco[STAGE_AXES] = {0, 0, 0};
-        if (st->has_wco) memcpy(wco, st->wco, sizeof(wco));
-        else if (known_wco) memcpy(wco, known_wco, sizeof(wco));
+        if (st->has_wco)
+            memcpy(wco, st->wco, sizeof(wco));
+        else if (known_wco)
+            memcpy(wco, known_wco, sizeof(wco));
         for (i = 0; i < STAGE_AXES; i++) {
             if (st->has_mpos && !st->has_wpos) st->wpos[i] = st->mpos[i] - wco[i];
             if (st->has_wpos && !st->has_mpos) st->mpos[i] = st->wpos[i] + wco[i];
@@ -181,14 +190,14 @@ bad:
     return -1;
 }
 
-int stage_parse_setting(const char *line, int *n, double *value, char *err) {
+int stage_parse_setting(const char *line, int *n, double *value, char *err)
+{
     const char *eq;
     char *end;
     long num;
     double v;
 
-    if (line[0] != '$' || !isdigit((unsigned char)line[1]) || !(eq = strchr(line, '=')))
-        goto bad;
+    if (line[0] != '$' || !isdigit((unsigned char)line[1]) || !(eq = strchr(line, '='))) goto bad;
     errno = 0;
     num = strtol(line + 1, &end, 10);
     if (errno || end != eq || num < 0 || num > 100000) goto bad;
@@ -206,9 +215,10 @@ bad:
     return -1;
 }
 
-char *stage_fmt_number(char *buf, int len, double v) {
+char *stage_fmt_number(char *buf, int len, double v)
+{
     char *dot, *e;
-    if (fabs(v) < 0.00005) v = 0.0;   /* no "-0" */
+    if (fabs(v) < 0.00005) v = 0.0; /* no "-0" */
     snprintf(buf, (size_t)len, "%.4f", v);
     dot = strchr(buf, '.');
     if (dot) {

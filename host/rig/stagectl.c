@@ -10,14 +10,16 @@
 
 #include "stage.h"
 
-static void usage(FILE *f) {
+static void usage(FILE *f)
+{
     fputs("usage: stagectl [options] COMMAND [ARGS]\n"
           "\n"
           "Commands:\n"
           "  list              serial ports libserialport sees (known Arduinos marked)\n"
           "  pos | status      one status report: state, MPos and WPos (degrees)\n"
           "  home              homing cycle ($H), then wait until Idle\n"
-          "  move X Y Z        absolute move in degrees (G90 G0, or G1 with --feed), wait until Idle\n"
+          "  move X Y Z        absolute move in degrees (G90 G0, or G1 with --feed), wait until "
+          "Idle\n"
           "  settings          all settings ($$), one $N=value per line\n"
           "  set N V           set one setting ($N=V)\n"
           "  unlock            clear an alarm ($X)\n"
@@ -27,7 +29,8 @@ static void usage(FILE *f) {
           "  send LINE         send one line, print what came back before its ok\n"
           "\n"
           "Options:\n"
-          "  --port PATH|auto  serial port or pty of the stage (default auto: first Arduino by USB VID:PID)\n"
+          "  --port PATH|auto  serial port or pty of the stage (default auto: first Arduino by USB "
+          "VID:PID)\n"
           "  --feed DEG_MIN    feed for move (default: rapid, G0)\n"
           "  --rehome          recover: home when the alarm lost the position\n"
           "  --reset-on-open   soft-reset right after opening the port\n"
@@ -45,33 +48,38 @@ static void usage(FILE *f) {
           f);
 }
 
-static int parse_num(const char *s, double *v) {
+static int parse_num(const char *s, double *v)
+{
     char *end;
     errno = 0;
     *v = strtod(s, &end);
     return (end == s || *end || errno) ? -1 : 0;
 }
 
-static int parse_ms(const char *s, int *v) {
+static int parse_ms(const char *s, int *v)
+{
     double d;
     if (parse_num(s, &d) != 0 || d < 1 || d > 3600000) return -1;
     *v = (int)d;
     return 0;
 }
 
-static void print_status(const stage_status_report *st) {
+static void print_status(const stage_status_report *st)
+{
     printf("%s", st->state);
     if (st->substate >= 0) printf(":%d", st->substate);
     printf(" MPos %.3f %.3f %.3f WPos %.3f %.3f %.3f\n", st->mpos[0], st->mpos[1], st->mpos[2],
            st->wpos[0], st->wpos[1], st->wpos[2]);
 }
 
-static void print_line(void *ctx, const char *line) {
+static void print_line(void *ctx, const char *line)
+{
     (void)ctx;
     printf("%s\n", line);
 }
 
-int main(int argc, char **argv) {
+int main(int argc, char **argv)
+{
     static const struct option longopts[] = {
         {"port", required_argument, 0, 'p'},
         {"feed", required_argument, 0, 'f'},
@@ -102,9 +110,15 @@ int main(int argc, char **argv) {
             break;
         case 'R': rehome = 1; break;
         case 'r': o.reset_on_open = 1; break;
-        case 'b': if (parse_ms(optarg, &o.banner_timeout_ms) != 0) goto badarg; break;
-        case 't': if (parse_ms(optarg, &o.reply_timeout_ms) != 0) goto badarg; break;
-        case 'P': if (parse_ms(optarg, &o.poll_ms) != 0) goto badarg; break;
+        case 'b':
+            if (parse_ms(optarg, &o.banner_timeout_ms) != 0) goto badarg;
+            break;
+        case 't':
+            if (parse_ms(optarg, &o.reply_timeout_ms) != 0) goto badarg;
+            break;
+        case 'P':
+            if (parse_ms(optarg, &o.poll_ms) != 0) goto badarg;
+            break;
         case 'm':
             if (parse_ms(optarg, &o.move_timeout_ms) != 0) goto badarg;
             o.home_timeout_ms = o.move_timeout_ms;
@@ -131,21 +145,27 @@ int main(int argc, char **argv) {
         return 0;
     }
 
-    {   /* Check the arguments before touching the stage. */
-        static const struct { const char *name; int nargs; } cmds[] = {
-            {"pos", 0}, {"status", 0}, {"home", 0}, {"move", 3}, {"settings", 0},
-            {"set", 2}, {"unlock", 0}, {"hold", 0}, {"reset", 0}, {"recover", 0}, {"send", 1},
+    { /* Check the arguments before touching the stage. */
+        static const struct {
+            const char *name;
+            int nargs;
+        } cmds[] = {
+            {"pos", 0},    {"status", 0}, {"home", 0},  {"move", 3},    {"settings", 0}, {"set", 2},
+            {"unlock", 0}, {"hold", 0},   {"reset", 0}, {"recover", 0}, {"send", 1},
         };
         size_t i;
         for (i = 0; i < sizeof(cmds) / sizeof(cmds[0]); i++)
             if (strcmp(cmd, cmds[i].name) == 0) break;
         if (i == sizeof(cmds) / sizeof(cmds[0])) {
-            fprintf(stderr, "stagectl: unknown command '%s' (list, pos, status, home, move, settings, "
-                            "set, unlock, hold, reset, recover, send)\n", cmd);
+            fprintf(stderr,
+                    "stagectl: unknown command '%s' (list, pos, status, home, move, settings, "
+                    "set, unlock, hold, reset, recover, send)\n",
+                    cmd);
             return 2;
         }
         if (nargs != cmds[i].nargs) {
-            fprintf(stderr, "stagectl: %s takes %d argument(s), got %d\n", cmd, cmds[i].nargs, nargs);
+            fprintf(stderr, "stagectl: %s takes %d argument(s), got %d\n", cmd, cmds[i].nargs,
+                    nargs);
             return 2;
         }
     }
@@ -154,13 +174,14 @@ int main(int argc, char **argv) {
         int i;
         for (i = 0; i < 3; i++) {
             if (parse_num(argv[optind + 1 + i], &xyz[i]) != 0) {
-                fprintf(stderr, "stagectl: move: '%s' is not a number of degrees\n", argv[optind + 1 + i]);
+                fprintf(stderr, "stagectl: move: '%s' is not a number of degrees\n",
+                        argv[optind + 1 + i]);
                 return 2;
             }
         }
     } else if (strcmp(cmd, "set") == 0) {
-        if (parse_num(argv[optind + 1], &setn) != 0 || setn < 0 || setn > 9999 || setn != (int)setn ||
-            parse_num(argv[optind + 2], &setv) != 0) {
+        if (parse_num(argv[optind + 1], &setn) != 0 || setn < 0 || setn > 9999 ||
+            setn != (int)setn || parse_num(argv[optind + 2], &setv) != 0) {
             fprintf(stderr, "stagectl: set: needs an integer setting number and a number\n");
             return 2;
         }
@@ -206,10 +227,13 @@ fail:
     fprintf(stderr, "stagectl: %s\n", err);
     rc = 1;
 out:
-    if (s.defaults_restored)   /* the firmware says it once, at boot: this may be the only chance */
-        fprintf(stderr, "stagectl: warning: the controller says '%s': it runs on the firmware's default "
-                        "settings (steps per degree, limits, rates), not the rig's; compare 'stagectl settings' "
-                        "with the rig's values and set them again\n", s.restored_msg);
+    if (s.defaults_restored) /* the firmware says it once, at boot: this may be the only chance */
+        fprintf(stderr,
+                "stagectl: warning: the controller says '%s': it runs on the firmware's default "
+                "settings (steps per degree, limits, rates), not the rig's; compare 'stagectl "
+                "settings' "
+                "with the rig's values and set them again\n",
+                s.restored_msg);
     stage_close(&s);
     return rc;
 badarg:

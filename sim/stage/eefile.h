@@ -5,15 +5,15 @@
 
 #include <stdint.h>
 #include "sim_avr.h"
-#include "err.h"	/* ERR_LEN: err[] buffers */
+#include "err.h" /* ERR_LEN: err[] buffers */
 
 #define EE_MAX 4096
 
 struct eefile {
-	avr_t *avr;
-	char path[512];
-	uint32_t size;
-	uint8_t saved[EE_MAX];		/* what the file holds now */
+    avr_t *avr;
+    char path[512];
+    uint32_t size;
+    uint8_t saved[EE_MAX]; /* what the file holds now */
 };
 
 /* Load path into the simulated EEPROM when it exists (a missing file means

@@ -5,6 +5,6 @@
 #ifndef SIM_STAGE_ERR_H
 #define SIM_STAGE_ERR_H
 
-#define ERR_LEN 256	/* size of every err[] buffer in sim/stage */
+#define ERR_LEN 256 /* size of every err[] buffer in sim/stage */
 
 #endif

@@ -13,28 +13,28 @@
 #include <stddef.h>
 #include <stdint.h>
 #include "sim_avr.h"
-#include "err.h"	/* ERR_LEN: err[] buffers */
+#include "err.h" /* ERR_LEN: err[] buffers */
 
-#define BRIDGE_RXQ 4096		/* host -> avr bytes read ahead from the pty */
-#define BRIDGE_TXQ 65536	/* avr -> host bytes waiting for the pty */
+#define BRIDGE_RXQ 4096  /* host -> avr bytes read ahead from the pty */
+#define BRIDGE_TXQ 65536 /* avr -> host bytes waiting for the pty */
 
 struct bridge {
-	avr_t *avr;
-	void *uart;			/* avr_uart_t of USART0 */
-	int master, slave;		/* slave kept open: no EIO/hangup between clients */
-	char path[256];
-	char link[256];			/* optional symlink to path, "" if none */
-	uint8_t rxq[BRIDGE_RXQ];
-	size_t rx_head, rx_len;
-	uint8_t txq[BRIDGE_TXQ];
-	size_t tx_head, tx_len;
-	uint64_t rx_bytes, tx_bytes, tx_dropped, xon;
-	int feeding;			/* guards against re-entry from the XON hook */
-	unsigned baud_warned;		/* last baud rate we warned about */
-	/* auto-reset: a pty has no DTR, so opens of the slave are watched */
-	int ino;			/* inotify descriptor on the slave, -1: off */
-	int clients;			/* descriptors other processes hold on the slave */
-	uint64_t opens, auto_resets;
+    avr_t *avr;
+    void *uart;        /* avr_uart_t of USART0 */
+    int master, slave; /* slave kept open: no EIO/hangup between clients */
+    char path[256];
+    char link[256]; /* optional symlink to path, "" if none */
+    uint8_t rxq[BRIDGE_RXQ];
+    size_t rx_head, rx_len;
+    uint8_t txq[BRIDGE_TXQ];
+    size_t tx_head, tx_len;
+    uint64_t rx_bytes, tx_bytes, tx_dropped, xon;
+    int feeding;          /* guards against re-entry from the XON hook */
+    unsigned baud_warned; /* last baud rate we warned about */
+    /* auto-reset: a pty has no DTR, so opens of the slave are watched */
+    int ino;     /* inotify descriptor on the slave, -1: off */
+    int clients; /* descriptors other processes hold on the slave */
+    uint64_t opens, auto_resets;
 };
 
 /* Open the pty (raw, no flush), hook USART0. link may be NULL. */

@@ -6,29 +6,29 @@
 
 #include <poll.h>
 #include <stddef.h>
-#include "err.h"	/* ERR_LEN: err[] buffers */
+#include "err.h" /* ERR_LEN: err[] buffers */
 
 #define SRV_CLIENTS 16
-#define SRV_LINE 256
-#define SRV_OUT 8192
+#define SRV_LINE    256
+#define SRV_OUT     8192
 
 /* Answer one request line (no newline) into out; returns the length. */
 typedef size_t (*srv_handler)(void *ctx, const char *request, char *out, size_t len);
 
 struct srv_client {
-	int fd;
-	char in[SRV_LINE];
-	size_t in_len;
-	char out[SRV_OUT];
-	size_t out_len;
+    int fd;
+    char in[SRV_LINE];
+    size_t in_len;
+    char out[SRV_OUT];
+    size_t out_len;
 };
 
 struct statesrv {
-	int fd;				/* listening socket, -1 when not serving */
-	char path[108];
-	srv_handler handler;
-	void *ctx;
-	struct srv_client client[SRV_CLIENTS];
+    int fd; /* listening socket, -1 when not serving */
+    char path[108];
+    srv_handler handler;
+    void *ctx;
+    struct srv_client client[SRV_CLIENTS];
 };
 
 /* Bind and listen on path (an existing socket file there is replaced). */

@@ -31,14 +31,16 @@ typedef struct {
     char script[64];
 } fake;
 
-static long long now_ms(void) {
+static long long now_ms(void)
+{
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (long long)ts.tv_sec * 1000 + ts.tv_nsec / 1000000;
 }
 
 /* Start the fake on a script; fills f->pty. */
-static void fake_start(fake *f, const char *script) {
+static void fake_start(fake *f, const char *script)
+{
     const char *py = getenv("RIG_PYTHON"), *prog = getenv("RIG_FAKE");
     int fds[2], fd;
     char buf[240];
@@ -80,7 +82,8 @@ static void fake_start(fake *f, const char *script) {
 }
 
 /* Stop the fake; its exit status (0: every expectation held, script done). */
-static int fake_stop(fake *f) {
+static int fake_stop(fake *f)
+{
     int st = 0;
     kill(f->pid, SIGTERM);
     waitpid(f->pid, &st, 0);
@@ -88,7 +91,8 @@ static int fake_stop(fake *f) {
     return WIFEXITED(st) ? WEXITSTATUS(st) : 100 + WTERMSIG(st);
 }
 
-static void fast_opts(stage_opts *o) {
+static void fast_opts(stage_opts *o)
+{
     stage_opts_default(o);
     o->banner_timeout_ms = 600;
     o->reply_timeout_ms = 400;
@@ -98,7 +102,8 @@ static void fast_opts(stage_opts *o) {
     if (getenv("RIG_TRACE")) o->log = stderr;
 }
 
-static void open_ok(stage *s, fake *f, const char *script) {
+static void open_ok(stage *s, fake *f, const char *script)
+{
     stage_opts o;
     char err[RIG_ERR_LEN];
     fast_opts(&o);
@@ -108,17 +113,19 @@ static void open_ok(stage *s, fake *f, const char *script) {
     assert_true(s->via_termios);
 }
 
-static void test_open_settings(void **state) {
+static void test_open_settings(void **state)
+{
     fake f;
     stage s;
     stage_setting set[8];
     char err[RIG_ERR_LEN];
     int n = 0;
     (void)state;
-    open_ok(&s, &f, BANNER "polls 1\n"
-            "expect $$\n"
-            "send $0=10\nsend $100=800.000\nsend $110=720.000 (x max rate)\nsend ok\n"
-            "expect $101=812.5\nsend ok\nend\n");
+    open_ok(&s, &f,
+            BANNER "polls 1\n"
+                   "expect $$\n"
+                   "send $0=10\nsend $100=800.000\nsend $110=720.000 (x max rate)\nsend ok\n"
+                   "expect $101=812.5\nsend ok\nend\n");
     assert_string_equal(s.banner, "Grbl 1.1h ['$' for help]");
     assert_int_equal(s.defaults_restored, 0);
     assert_int_equal(stage_get_settings(&s, set, 8, &n, err), 0);
@@ -131,16 +138,18 @@ static void test_open_settings(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_move_wait_idle(void **state) {
+static void test_move_wait_idle(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     double xyz[3] = {10, -5.5, 0.125};
     (void)state;
-    open_ok(&s, &f, BANNER "polls 1\n"
-            "expect G90 G0 X10 Y-5.5 Z0.125\nsend ok\n"
-            "expect G4 P0\nstate <Run|MPos:4.000,-2.000,0.050|FS:720,0>\nsend ok\n"
-            "polls 2\nstate <Idle|MPos:10.000,-5.500,0.125|FS:0,0>\npolls 1\nend\n");
+    open_ok(&s, &f,
+            BANNER "polls 1\n"
+                   "expect G90 G0 X10 Y-5.5 Z0.125\nsend ok\n"
+                   "expect G4 P0\nstate <Run|MPos:4.000,-2.000,0.050|FS:720,0>\nsend ok\n"
+                   "polls 2\nstate <Idle|MPos:10.000,-5.500,0.125|FS:0,0>\npolls 1\nend\n");
     if (stage_move_wait(&s, xyz, 0, err) != 0) fail_msg("%s", err);
     assert_string_equal(s.last.state, "Idle");
     assert_float_equal(s.last.mpos[0], 10.0, 1e-9);
@@ -150,7 +159,8 @@ static void test_move_wait_idle(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_error_reply(void **state) {
+static void test_error_reply(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
@@ -165,13 +175,16 @@ static void test_error_reply(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_alarm_then_recover_rehome(void **state) {
+static void test_alarm_then_recover_rehome(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     double xyz[3] = {30, 0, 0};
     (void)state;
-    open_ok(&s, &f, BANNER "polls 1\n"
+    open_ok(&s, &f,
+            BANNER
+            "polls 1\n"
             "expect G90 G0 X30 Y0 Z0\nsend ok\nexpect G4 P0\n"
             "state <Run|MPos:3.000,0.000,0.000|FS:720,0>\n"
             "send ALARM:1\nsend [MSG:Reset to continue]\n"
@@ -189,29 +202,33 @@ static void test_alarm_then_recover_rehome(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_recover_needs_rehome(void **state) {
+static void test_recover_needs_rehome(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     (void)state;
-    open_ok(&s, &f, BANNER "polls 1\nsend ALARM:3\nstate <Alarm|MPos:0,0,0>\n"
-            "expect_rt 18\n" BANNER "polls 1\nend\n");
+    open_ok(&s, &f,
+            BANNER "polls 1\nsend ALARM:3\nstate <Alarm|MPos:0,0,0>\n"
+                   "expect_rt 18\n" BANNER "polls 1\nend\n");
     assert_int_equal(stage_recover(&s, 0, err), -1);
     assert_non_null(strstr(err, "home it"));
     stage_close(&s);
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_recover_soft_limit_unlocks(void **state) {
+static void test_recover_soft_limit_unlocks(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     double xyz[3] = {400, 0, 0};
     (void)state;
-    open_ok(&s, &f, BANNER "polls 1\nexpect G90 G0 X400 Y0 Z0\nsend ALARM:2\n"
-            "state <Alarm|MPos:0,0,0>\nsend error:9\n"
-            "expect_rt 18\n" BANNER "polls 1\nexpect $X\nsend [MSG:Caution: Unlocked]\n"
-            "state <Idle|MPos:0,0,0>\nsend ok\nend\n");
+    open_ok(&s, &f,
+            BANNER "polls 1\nexpect G90 G0 X400 Y0 Z0\nsend ALARM:2\n"
+                   "state <Alarm|MPos:0,0,0>\nsend error:9\n"
+                   "expect_rt 18\n" BANNER "polls 1\nexpect $X\nsend [MSG:Caution: Unlocked]\n"
+                   "state <Idle|MPos:0,0,0>\nsend ok\nend\n");
     assert_int_equal(stage_move(&s, xyz, 0, err), -1);
     assert_non_null(strstr(err, "ALARM:2"));
     if (stage_recover(&s, 0, err) != 0) fail_msg("%s", err);
@@ -220,7 +237,8 @@ static void test_recover_soft_limit_unlocks(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_reply_timeout(void **state) {
+static void test_reply_timeout(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
@@ -235,15 +253,17 @@ static void test_reply_timeout(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_late_reply_not_taken_for_next(void **state) {
+static void test_late_reply_not_taken_for_next(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     (void)state;
     /* The ok of a timed-out command arrives late; the next command must
      * wait for its own reply (error:9 here), not take the stale ok. */
-    open_ok(&s, &f, BANNER "polls 1\nexpect $X\nsleep 500\nsend ok\n"
-            "expect $X\nsend error:9\nend\n");
+    open_ok(&s, &f,
+            BANNER "polls 1\nexpect $X\nsleep 500\nsend ok\n"
+                   "expect $X\nsend error:9\nend\n");
     assert_int_equal(stage_unlock(&s, err), -1);
     usleep(300 * 1000);
     assert_int_equal(stage_unlock(&s, err), -1);
@@ -252,12 +272,14 @@ static void test_late_reply_not_taken_for_next(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_garbage_ignored(void **state) {
+static void test_garbage_ignored(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     (void)state;
-    open_ok(&s, &f, "garbage 40\n" BANNER "garbage 700\npolls 1\n"
+    open_ok(&s, &f,
+            "garbage 40\n" BANNER "garbage 700\npolls 1\n"
             "expect $X\ngarbage 300\nraw 00ff0d0a\nsend <Idle|MPos:bogus>\n"
             "send [MSG:Caution: Unlocked]\nsend ok\nend\n");
     if (stage_unlock(&s, err) != 0) fail_msg("%s", err);
@@ -269,12 +291,14 @@ static void test_garbage_ignored(void **state) {
  * onto the first command ("G0 X$X": refused). The client's line break on
  * connecting ends them as a line of their own; their error reply is read
  * then, not taken for the first command's. */
-static void test_stray_bytes_ended_on_connect(void **state) {
+static void test_stray_bytes_ended_on_connect(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     (void)state;
-    open_ok(&s, &f, "junk G0 X\n" BANNER "expect G0 X\nsend error:2\npolls 1\n"
+    open_ok(&s, &f,
+            "junk G0 X\n" BANNER "expect G0 X\nsend error:2\npolls 1\n"
             "expect $X\nsend ok\nend\n");
     assert_int_equal(s.last_error, 0);
     if (stage_unlock(&s, err) != 0) fail_msg("%s", err);
@@ -285,19 +309,23 @@ static void test_stray_bytes_ended_on_connect(void **state) {
 /* A controller whose EEPROM failed its CRC check says so once, after its
  * boot banner, and runs on defaults: the client keeps the fact for its
  * callers (stagectl reports it, poserig refuses to measure). */
-static void test_eeprom_defaults_noted(void **state) {
+static void test_eeprom_defaults_noted(void **state)
+{
     fake f;
     stage s;
     (void)state;
-    open_ok(&s, &f, BANNER "send [MSG:EEPROM settings failed CRC check, defaults restored]\n"
-            "polls 1\nend\n");
+    open_ok(&s, &f,
+            BANNER "send [MSG:EEPROM settings failed CRC check, defaults restored]\n"
+                   "polls 1\nend\n");
     assert_int_equal(s.defaults_restored, 1);
-    assert_string_equal(s.restored_msg, "[MSG:EEPROM settings failed CRC check, defaults restored]");
+    assert_string_equal(s.restored_msg,
+                        "[MSG:EEPROM settings failed CRC check, defaults restored]");
     stage_close(&s);
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_port_vanishes(void **state) {
+static void test_port_vanishes(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
@@ -307,7 +335,7 @@ static void test_port_vanishes(void **state) {
     open_ok(&s, &f, BANNER "polls 1\nexpect G90 G0 X1 Y1 Z1\nclose\n");
     t0 = now_ms();
     assert_int_equal(stage_move_wait(&s, xyz, 0, err), -1);
-    assert_true(now_ms() - t0 < 1000);   /* noticed at once, not at the deadline */
+    assert_true(now_ms() - t0 < 1000); /* noticed at once, not at the deadline */
     assert_non_null(strstr(err, "vanished"));
     assert_true(s.dead);
     assert_int_equal(stage_status(&s, NULL, err), -1);
@@ -316,7 +344,8 @@ static void test_port_vanishes(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_no_banner_but_answers(void **state) {
+static void test_no_banner_but_answers(void **state)
+{
     fake f;
     stage s;
     (void)state;
@@ -328,7 +357,8 @@ static void test_no_banner_but_answers(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_silent_until_reset(void **state) {
+static void test_silent_until_reset(void **state)
+{
     fake f;
     stage s;
     (void)state;
@@ -338,7 +368,8 @@ static void test_silent_until_reset(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_dead_controller(void **state) {
+static void test_dead_controller(void **state)
+{
     fake f;
     stage s;
     stage_opts o;
@@ -355,7 +386,8 @@ static void test_dead_controller(void **state) {
     fake_stop(&f);
 }
 
-static void test_reset_during_command(void **state) {
+static void test_reset_during_command(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
@@ -369,7 +401,8 @@ static void test_reset_during_command(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_wait_idle_deadline(void **state) {
+static void test_wait_idle_deadline(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
@@ -384,14 +417,16 @@ static void test_wait_idle_deadline(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_feed_hold_and_reset(void **state) {
+static void test_feed_hold_and_reset(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
     (void)state;
-    open_ok(&s, &f, BANNER "polls 1\nexpect_rt 21\nstate <Hold:0|MPos:1,0,0>\n"
-            "expect_rt 18\nsend ALARM:3\n" BANNER "send [MSG:'$H'|'$X' to unlock]\n"
-            "state <Alarm|MPos:1,0,0>\npolls 1\nend\n");
+    open_ok(&s, &f,
+            BANNER "polls 1\nexpect_rt 21\nstate <Hold:0|MPos:1,0,0>\n"
+                   "expect_rt 18\nsend ALARM:3\n" BANNER "send [MSG:'$H'|'$X' to unlock]\n"
+                   "state <Alarm|MPos:1,0,0>\npolls 1\nend\n");
     assert_int_equal(stage_feed_hold(&s, err), 0);
     assert_int_equal(stage_reset(&s, err), 0);
     assert_string_equal(s.last.state, "Alarm");
@@ -401,7 +436,8 @@ static void test_feed_hold_and_reset(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_bad_lines_refused(void **state) {
+static void test_bad_lines_refused(void **state)
+{
     fake f;
     stage s;
     char err[RIG_ERR_LEN], big[100];
@@ -416,7 +452,8 @@ static void test_bad_lines_refused(void **state) {
     assert_int_equal(fake_stop(&f), 0);
 }
 
-static void test_open_missing_port(void **state) {
+static void test_open_missing_port(void **state)
+{
     stage s;
     stage_opts o;
     char err[RIG_ERR_LEN];
@@ -428,7 +465,8 @@ static void test_open_missing_port(void **state) {
     assert_int_equal(stage_open(&s, "/dev/null", &o, err), -1);
 }
 
-int main(void) {
+int main(void)
+{
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_open_settings),
         cmocka_unit_test(test_move_wait_idle),

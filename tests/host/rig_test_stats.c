@@ -17,11 +17,12 @@
 #include "rig_report.h"
 #include "rig_stats.h"
 
-static void test_wrap(void **state) {
+static void test_wrap(void **state)
+{
     (void)state;
     assert_float_equal(rig_wrap_deg(190), -170, 1e-12);
     assert_float_equal(rig_wrap_deg(-190), 170, 1e-12);
-    assert_float_equal(rig_wrap_deg(180), 180, 1e-12);     /* (-180, 180] */
+    assert_float_equal(rig_wrap_deg(180), 180, 1e-12); /* (-180, 180] */
     assert_float_equal(rig_wrap_deg(-180), 180, 1e-12);
     assert_float_equal(rig_wrap_deg(540), 180, 1e-12);
     assert_float_equal(rig_wrap_deg(359.9), -0.1, 1e-9);
@@ -29,7 +30,8 @@ static void test_wrap(void **state) {
     assert_float_equal(rig_wrap_deg(720.25), 0.25, 1e-9);
 }
 
-static void test_errors_wrapped(void **state) {
+static void test_errors_wrapped(void **state)
+{
     double e[3], pred[3] = {179, -10, 0.5}, truth[3] = {-179, 350, -0.25};
     (void)state;
     rig_pose_errors(pred, truth, e);
@@ -39,17 +41,27 @@ static void test_errors_wrapped(void **state) {
 }
 
 /* tests/data/conventions_vectors.json, pose -> R. */
-static void test_matrix_vectors(void **state) {
-    static const struct { double pose[3]; double R[3][3]; } v[] = {
+static void test_matrix_vectors(void **state)
+{
+    static const struct {
+        double pose[3];
+        double R[3][3];
+    } v[] = {
         {{30, 0, 0}, {{1, 0, 0}, {0, 0.866025404, -0.5}, {0, 0.5, 0.866025404}}},
         {{0, 30, 0}, {{0.866025404, 0, 0.5}, {0, 1, 0}, {-0.5, 0, 0.866025404}}},
         {{0, 0, 30}, {{0.866025404, -0.5, 0}, {0.5, 0.866025404, 0}, {0, 0, 1}}},
-        {{12, -27, 6}, {{0.886125497, -0.19611712, -0.419904368}, {0.093135543, 0.962922771, -0.253190654},
-                        {0.4539905, 0.185250673, 0.871535894}}},
-        {{-30, 30, -30}, {{0.75, 0.216506351, 0.625}, {-0.433012702, 0.875, 0.216506351},
-                          {-0.5, -0.433012702, 0.75}}},
-        {{7.5, 3.25, -14.125}, {{0.968205923, 0.249126557, 0.022654992}, {-0.243645681, 0.95966329, -0.140296657},
-                                {-0.056692788, 0.130316263, 0.989850291}}},
+        {{12, -27, 6},
+         {{0.886125497, -0.19611712, -0.419904368},
+          {0.093135543, 0.962922771, -0.253190654},
+          {0.4539905, 0.185250673, 0.871535894}}},
+        {{-30, 30, -30},
+         {{0.75, 0.216506351, 0.625},
+          {-0.433012702, 0.875, 0.216506351},
+          {-0.5, -0.433012702, 0.75}}},
+        {{7.5, 3.25, -14.125},
+         {{0.968205923, 0.249126557, 0.022654992},
+          {-0.243645681, 0.95966329, -0.140296657},
+          {-0.056692788, 0.130316263, 0.989850291}}},
     };
     size_t c;
     int i, k;
@@ -62,7 +74,8 @@ static void test_matrix_vectors(void **state) {
     }
 }
 
-static void test_geodesic(void **state) {
+static void test_geodesic(void **state)
+{
     double a[3] = {0, 0, 0}, b[3] = {10, 0, 0}, c[3] = {12, -27, 6}, d[3] = {12, -27, 6 + 360};
     (void)state;
     assert_float_equal(rig_geodesic_deg(a, a), 0, 1e-6);
@@ -76,7 +89,8 @@ static void test_geodesic(void **state) {
 /* The paper's Table 1, Texture_3_color: Err 0.284, 0.367, 0.596 and Std 0.211,
  * 0.242, 0.466 give MAE 0.416 and RMSE 0.545. Two samples Err +- Std per axis
  * have exactly that mean and population deviation. */
-static void test_paper_table1(void **state) {
+static void test_paper_table1(void **state)
+{
     static const double err[3] = {0.284, 0.367, 0.596}, sd[3] = {0.211, 0.242, 0.466};
     double e[2 * 3];
     rig_summary s;
@@ -97,7 +111,8 @@ static void test_paper_table1(void **state) {
     assert_float_equal(s.rmse, 0.545, 0.0005);
 }
 
-static void test_quartiles(void **state) {
+static void test_quartiles(void **state)
+{
     /* One axis 1..9 and an outlier 100: numpy.percentile gives these. */
     double e[10 * 3];
     rig_summary s;
@@ -112,14 +127,15 @@ static void test_quartiles(void **state) {
     assert_float_equal(s.axis[0].median, 5.5, 1e-12);
     assert_float_equal(s.axis[0].q3, 7.75, 1e-12);
     assert_float_equal(s.axis[0].whisk_lo, 1, 1e-12);
-    assert_float_equal(s.axis[0].whisk_hi, 9, 1e-12);   /* 100 is an outlier */
+    assert_float_equal(s.axis[0].whisk_hi, 9, 1e-12); /* 100 is an outlier */
     assert_float_equal(s.axis[0].max, 100, 1e-12);
     assert_float_equal(s.axis[1].std, 0, 1e-12);
     assert_int_equal(rig_summarise(e, NULL, 0, &s), 0);
     assert_int_equal(s.n, 0);
 }
 
-static char *write_tmp(const char *text) {
+static char *write_tmp(const char *text)
+{
     static char path[64];
     int fd;
     snprintf(path, sizeof(path), "/tmp/rig_plan_XXXXXX");
@@ -130,7 +146,8 @@ static char *write_tmp(const char *text) {
     return path;
 }
 
-static void test_plan_load(void **state) {
+static void test_plan_load(void **state)
+{
     rig_pose *p;
     char err[RIG_ERR_LEN];
     int n;
@@ -144,10 +161,18 @@ static void test_plan_load(void **state) {
     unlink(path);
 }
 
-static void test_plan_errors(void **state) {
+static void test_plan_errors(void **state)
+{
     static const char *bad[] = {
-        "1,2\n", "1,2,3,4\n", "1,2,x\n", "x,y,z\nX,Y,Z\n", "1,2,3\nheader,late,here\n", "nan,0,0\n",
-        "", "# only a comment\n", "1;2;3\n",
+        "1,2\n",
+        "1,2,3,4\n",
+        "1,2,x\n",
+        "x,y,z\nX,Y,Z\n",
+        "1,2,3\nheader,late,here\n",
+        "nan,0,0\n",
+        "",
+        "# only a comment\n",
+        "1;2;3\n",
     };
     size_t i;
     rig_pose *p;
@@ -158,7 +183,7 @@ static void test_plan_errors(void **state) {
         char *path = write_tmp(bad[i]);
         err[0] = '\0';
         assert_int_equal(rig_plan_load(path, &p, &n, err), -1);
-        assert_non_null(strstr(err, path));   /* the message names the file */
+        assert_non_null(strstr(err, path)); /* the message names the file */
         assert_null(p);
         unlink(path);
     }
@@ -166,7 +191,8 @@ static void test_plan_errors(void **state) {
     assert_non_null(strstr(err, "/nonexistent/plan.csv"));
 }
 
-static void test_plan_random(void **state) {
+static void test_plan_random(void **state)
+{
     const double range[3][2] = {{-30, 30}, {-10, 5}, {0, 0}};
     rig_pose *a, *b;
     char err[RIG_ERR_LEN];
@@ -189,7 +215,8 @@ static void test_plan_random(void **state) {
     assert_int_equal(rig_plan_random(0, range, 1, &a, err), -1);
 }
 
-static void test_parse_range(void **state) {
+static void test_parse_range(void **state)
+{
     double lo, hi;
     (void)state;
     assert_int_equal(rig_parse_range("-30,30", &lo, &hi), 0);
@@ -201,11 +228,12 @@ static void test_parse_range(void **state) {
     assert_int_equal(rig_parse_range("a,b", &lo, &hi), -1);
 }
 
-static void test_report_files(void **state) {
+static void test_report_files(void **state)
+{
     rig_row rows[3];
     rig_results s;
-    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam", "m.onnx", "test", 3, 2, 1, NULL, 1.5, 100,
-                         "2025-01-01T00:00:00Z", NULL, 0};
+    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam",        "m.onnx", "test", 3, 2, 1, NULL, 1.5,
+                         100,          "2025-01-01T00:00:00Z", NULL,     0};
     char err[RIG_ERR_LEN], dir[64], path[128], buf[8192];
     FILE *f;
     size_t len;
@@ -217,7 +245,8 @@ static void test_report_files(void **state) {
         rows[i].cmd[0] = i;
         rows[i].ok = i != 1;
         rows[i].err[0] = i + 0.5;
-        snprintf(rows[i].status, sizeof(rows[i].status), "%s", i == 1 ? "pi_infer_frame: no sphere, \"found\"" : "ok");
+        snprintf(rows[i].status, sizeof(rows[i].status), "%s",
+                 i == 1 ? "pi_infer_frame: no sphere, \"found\"" : "ok");
     }
     snprintf(dir, sizeof(dir), "/tmp/rig_report_XXXXXX");
     assert_non_null(mkdtemp(dir));
@@ -254,7 +283,8 @@ static void test_report_files(void **state) {
 }
 
 /* Read a whole (small) file into buf. */
-static void slurp(const char *path, char *buf, size_t len) {
+static void slurp(const char *path, char *buf, size_t len)
+{
     FILE *f = fopen(path, "r");
     size_t k;
     assert_non_null(f);
@@ -264,7 +294,8 @@ static void slurp(const char *path, char *buf, size_t len) {
 }
 
 /* The CSV line of pose `index` (after the header), copied into line. */
-static void csv_line(const char *buf, int index, char *line, size_t len) {
+static void csv_line(const char *buf, int index, char *line, size_t len)
+{
     const char *p = strchr(buf, '\n');
     char want[16];
     size_t k;
@@ -280,11 +311,23 @@ static void csv_line(const char *buf, int index, char *line, size_t len) {
 /* Five measured poses, one flagged, one flagged with no residual, one
  * failed: the flagged ones are left out of the confident statistics, listed
  * apart, and counted in the all-poses statistics. */
-static void test_flagged_poses(void **state) {
+static void test_flagged_poses(void **state)
+{
     rig_row rows[6];
     rig_results s;
-    rig_run_info info = {"/dev/pts/9", "unix:/tmp/cam", "m.onnx", "test", 6, 5, 1, NULL, 1.5, 100,
-                         "2025-01-01T00:00:00Z", "{\"residual_max\": 0.1}", 0};
+    rig_run_info info = {"/dev/pts/9",
+                         "unix:/tmp/cam",
+                         "m.onnx",
+                         "test",
+                         6,
+                         5,
+                         1,
+                         NULL,
+                         1.5,
+                         100,
+                         "2025-01-01T00:00:00Z",
+                         "{\"residual_max\": 0.1}",
+                         0};
     char err[RIG_ERR_LEN], dir[64], path[128], buf[16384], line[1024], *text = NULL;
     size_t textlen = 0;
     FILE *f;
@@ -303,19 +346,20 @@ static void test_flagged_poses(void **state) {
         rows[i].geo = 0.2 * (i + 1);
         snprintf(rows[i].status, sizeof(rows[i].status), "%s", rows[i].ok ? "ok" : "camera: gone");
     }
-    rows[1].err[0] = 40;                /* far off, and flagged: must not reach the table */
+    rows[1].err[0] = 40; /* far off, and flagged: must not reach the table */
     rows[1].residual = 0.9;
-    snprintf(rows[1].note, sizeof(rows[1].note), "poor alignment (residual 0.900 > 0.100): another texture");
+    snprintf(rows[1].note, sizeof(rows[1].note),
+             "poor alignment (residual 0.900 > 0.100): another texture");
     snprintf(rows[3].note, sizeof(rows[3].note), "refine: circle too small or outside the frame");
     assert_int_equal(rig_row_flagged(&rows[1]), 1);
     assert_int_equal(rig_row_flagged(&rows[0]), 0);
-    assert_int_equal(rig_row_flagged(&rows[4]), 0);   /* no estimate: failed, not flagged */
+    assert_int_equal(rig_row_flagged(&rows[4]), 0); /* no estimate: failed, not flagged */
 
     assert_int_equal(rig_summarise_rows(rows, 6, &s, err), 0);
     assert_int_equal(s.measured, 5);
     assert_int_equal(s.judged, 5);
     assert_int_equal(s.flagged, 2);
-    assert_int_equal(s.confident.n, 3);           /* poses 0, 2, 5 */
+    assert_int_equal(s.confident.n, 3); /* poses 0, 2, 5 */
     assert_int_equal(s.all.n, 5);
     assert_float_equal(s.confident.axis[0].err, (0.1 + 0.3 + 0.6) / 3, 1e-12);
     assert_float_equal(s.confident.axis[0].max, 0.6, 1e-12);
@@ -333,11 +377,12 @@ static void test_flagged_poses(void **state) {
     assert_non_null(strstr(line, ",\"ok\",\"\","));
     csv_line(buf, 1, line, sizeof(line));
     assert_non_null(strstr(line, ",false,0.90000,"));
-    assert_non_null(strstr(line, ",\"ok\",\"poor alignment (residual 0.900 > 0.100): another texture\","));
+    assert_non_null(
+        strstr(line, ",\"ok\",\"poor alignment (residual 0.900 > 0.100): another texture\","));
     csv_line(buf, 3, line, sizeof(line));
-    assert_non_null(strstr(line, ",false,,"));     /* refinement could not run: no residual */
+    assert_non_null(strstr(line, ",false,,")); /* refinement could not run: no residual */
     csv_line(buf, 4, line, sizeof(line));
-    assert_non_null(strstr(line, ",,,"));          /* no estimate: nothing judged */
+    assert_non_null(strstr(line, ",,,")); /* no estimate: nothing judged */
     assert_null(strstr(line, "true"));
     assert_null(strstr(line, "false"));
     unlink(path);
@@ -348,9 +393,10 @@ static void test_flagged_poses(void **state) {
     assert_non_null(strstr(buf, "| measured: confident / flagged | 3 / 2 |"));
     assert_non_null(strstr(buf, "## Flagged poses (not confident, 2)"));
     assert_non_null(strstr(buf, "| 1 | 1.000, 0.000, 0.000 |"));
-    assert_non_null(strstr(buf, "| 0.9000 | poor alignment (residual 0.900 > 0.100): another texture |"));
+    assert_non_null(
+        strstr(buf, "| 0.9000 | poor alignment (residual 0.900 > 0.100): another texture |"));
     assert_non_null(strstr(buf, "| n/a | refine: circle too small"));
-    assert_null(strstr(buf, "| 0 | 0.000, 0.000, 0.000 |"));   /* a confident pose is not listed */
+    assert_null(strstr(buf, "| 0 | 0.000, 0.000, 0.000 |")); /* a confident pose is not listed */
     /* The confident table first (max 0.600), then all poses (max 40.000). */
     assert_non_null(strstr(buf, "| X-axis | 0.333 | "));
     assert_true(strstr(buf, "| X-axis | 0.333 | ") < strstr(buf, "all 5 measured poses"));
@@ -362,11 +408,12 @@ static void test_flagged_poses(void **state) {
     assert_non_null(f);
     rig_print_summary(f, &info, &s, rows, 6);
     fclose(f);
+    assert_non_null(strstr(
+        text, "Error analysis of 3 confident pose(s) (degrees; 6 planned, 1 failed, 2 flagged)"));
     assert_non_null(
-        strstr(text, "Error analysis of 3 confident pose(s) (degrees; 6 planned, 1 failed, 2 flagged)"));
-    assert_non_null(strstr(text, "Flagged, left out of the table above: 2 of 5 measured pose(s): 1, 3\n"));
-    assert_non_null(
-        strstr(text, "  pose 1 cmd (1.000, 0.000, 0.000) geodesic 0.400 residual 0.9000: poor alignment"));
+        strstr(text, "Flagged, left out of the table above: 2 of 5 measured pose(s): 1, 3\n"));
+    assert_non_null(strstr(
+        text, "  pose 1 cmd (1.000, 0.000, 0.000) geodesic 0.400 residual 0.9000: poor alignment"));
     assert_non_null(strstr(text, "All 5 measured pose(s), flagged included"));
     /* The first X-axis row is the confident one. */
     assert_non_null(strstr(text, "X-axis          0.333     0.205     0.392     0.600\n"));
@@ -394,20 +441,15 @@ static void test_flagged_poses(void **state) {
     rmdir(dir);
 }
 
-int main(void) {
+int main(void)
+{
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(test_wrap),
-        cmocka_unit_test(test_errors_wrapped),
-        cmocka_unit_test(test_matrix_vectors),
-        cmocka_unit_test(test_geodesic),
-        cmocka_unit_test(test_paper_table1),
-        cmocka_unit_test(test_quartiles),
-        cmocka_unit_test(test_plan_load),
-        cmocka_unit_test(test_plan_errors),
-        cmocka_unit_test(test_plan_random),
-        cmocka_unit_test(test_parse_range),
-        cmocka_unit_test(test_report_files),
-        cmocka_unit_test(test_flagged_poses),
+        cmocka_unit_test(test_wrap),           cmocka_unit_test(test_errors_wrapped),
+        cmocka_unit_test(test_matrix_vectors), cmocka_unit_test(test_geodesic),
+        cmocka_unit_test(test_paper_table1),   cmocka_unit_test(test_quartiles),
+        cmocka_unit_test(test_plan_load),      cmocka_unit_test(test_plan_errors),
+        cmocka_unit_test(test_plan_random),    cmocka_unit_test(test_parse_range),
+        cmocka_unit_test(test_report_files),   cmocka_unit_test(test_flagged_poses),
     };
     return cmocka_run_group_tests_name("rig_stats", tests, NULL, NULL);
 }

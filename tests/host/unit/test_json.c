@@ -16,7 +16,9 @@ static void parses_objects_arrays_numbers(void **state)
     char err[128];
     (void)state;
     assert_int_equal(json_parse(" {\"a\": 1.5e2, \"b\": [1, -2, 0.25], \"c\": \"x\\n\\u00e9\", "
-                                "\"d\": true, \"e\": null, \"a\": -3} ", &v, err, sizeof err), 0);
+                                "\"d\": true, \"e\": null, \"a\": -3} ",
+                                &v, err, sizeof err),
+                     0);
     assert_int_equal(v.type, JSON_OBJECT);
     assert_true(json_get(&v, "a")->number == -3); /* last duplicate wins */
     const json_value *b = json_get(&v, "b");
@@ -32,9 +34,10 @@ static void parses_objects_arrays_numbers(void **state)
 
 static void rejects_bad_json(void **state)
 {
-    static const char *bad[] = {"", "{", "{\"a\" 1}", "{\"a\": 1,}", "[1 2]", "01", "1.", "-", ".5",
-                                "nan", "Infinity", "0x10", "\"abc", "\"a\\q\"", "\"\\u12\"", "{} x",
-                                "tru", "1e999", "{\"a\":\"\x01\"}", NULL};
+    static const char *bad[] = {
+        "",    "{",     "{\"a\" 1}",        "{\"a\": 1,}", "[1 2]", "01",       "1.",        "-",
+        ".5",  "nan",   "Infinity",         "0x10",        "\"abc", "\"a\\q\"", "\"\\u12\"", "{} x",
+        "tru", "1e999", "{\"a\":\"\x01\"}", NULL};
     char err[128];
     (void)state;
     for (int i = 0; bad[i]; i++) {
@@ -83,16 +86,21 @@ static void writes_escaped_strings_and_numbers(void **state)
  * becomes \ufffd, so the line stays valid JSON (issue: non-UTF-8 file names). */
 static void replaces_bytes_that_are_not_utf8(void **state)
 {
-    static const struct { const char *in, *out; } cases[] = {
-        {"n\xc3\xa4me \xe2\x82\xac \xf0\x9f\x98\x80", "\"n\xc3\xa4me \xe2\x82\xac \xf0\x9f\x98\x80\""},
-        {"a\xff" "b", "\"a\\ufffdb\""},                       /* never a UTF-8 byte */
-        {"\xe9t\xe9.png", "\"\\ufffdt\\ufffd.png\""},         /* Latin-1 */
-        {"\xc3", "\"\\ufffd\""},                           /* cut at the end */
-        {"\xe2\x82", "\"\\ufffd\\ufffd\""},                  /* cut at the end */
-        {"\xc0\xaf", "\"\\ufffd\\ufffd\""},                  /* overlong '/' */
-        {"\xed\xa0\x80", "\"\\ufffd\\ufffd\\ufffd\""},         /* a surrogate */
+    static const struct {
+        const char *in, *out;
+    } cases[] = {
+        {"n\xc3\xa4me \xe2\x82\xac \xf0\x9f\x98\x80",
+         "\"n\xc3\xa4me \xe2\x82\xac \xf0\x9f\x98\x80\""},
+        {"a\xff"
+         "b",
+         "\"a\\ufffdb\""},                                        /* never a UTF-8 byte */
+        {"\xe9t\xe9.png", "\"\\ufffdt\\ufffd.png\""},             /* Latin-1 */
+        {"\xc3", "\"\\ufffd\""},                                  /* cut at the end */
+        {"\xe2\x82", "\"\\ufffd\\ufffd\""},                       /* cut at the end */
+        {"\xc0\xaf", "\"\\ufffd\\ufffd\""},                       /* overlong '/' */
+        {"\xed\xa0\x80", "\"\\ufffd\\ufffd\\ufffd\""},            /* a surrogate */
         {"\xf4\x90\x80\x80", "\"\\ufffd\\ufffd\\ufffd\\ufffd\""}, /* above U+10FFFF */
-        {"\x80x", "\"\\ufffdx\""},                         /* lone continuation */
+        {"\x80x", "\"\\ufffdx\""},                                /* lone continuation */
     };
     sbuf s;
     json_value v;

@@ -18,7 +18,8 @@
 #include "shim.h"
 
 /* A w x h BGR frame of colour bg with a filled disc of colour fg. */
-static uint8_t *disc_frame(int w, int h, double cx, double cy, double r, const uint8_t bg[3], const uint8_t fg[3])
+static uint8_t *disc_frame(int w, int h, double cx, double cy, double r, const uint8_t bg[3],
+                           const uint8_t fg[3])
 {
     uint8_t *p = malloc((size_t)w * h * 3);
     assert_non_null(p);
@@ -34,9 +35,12 @@ static const uint8_t BG[3] = {40, 50, 60}, FG[3] = {200, 120, 30};
 
 /* A sphere-crop-v1 parameter set as an export writes it: every key
  * (training/preprocess.py DEFAULTS_V1; the C side has no defaults). */
-#define V1_KEYS(X) X("size", "128") X("margin", "1.15") X("fg_threshold", "40") X("border_frac", "0.02") \
-    X("close_frac", "0.03") X("min_area_frac", "0.002") X("mean", "[0.485, 0.456, 0.406]")           \
-    X("std", "[0.229, 0.224, 0.225]")
+#define V1_KEYS(X)                                                           \
+    X("size", "128")                                                         \
+    X("margin", "1.15")                                                      \
+    X("fg_threshold", "40") X("border_frac", "0.02") X("close_frac", "0.03") \
+        X("min_area_frac", "0.002") X("mean", "[0.485, 0.456, 0.406]")       \
+            X("std", "[0.229, 0.224, 0.225]")
 #define V1_JSON_KEY(k, v) ", \"" k "\": " v
 static const char V1_FULL[] = "{\"name\": \"sphere-crop-v1\"" V1_KEYS(V1_JSON_KEY) "}";
 
@@ -141,8 +145,8 @@ static void no_sphere(void **state)
 
 static void probes_headers(void **state)
 {
-    unsigned char png[24] = {0x89, 'P', 'N', 'G', 0x0d, 0x0a, 0x1a, 0x0a, 0, 0, 0, 13, 'I', 'H', 'D', 'R',
-                             0, 0, 0x0a, 0x00, 0, 0, 0x05, 0x00};
+    unsigned char png[24] = {0x89, 'P', 'N', 'G', 0x0d, 0x0a, 0x1a, 0x0a, 0, 0, 0,    13,
+                             'I',  'H', 'D', 'R', 0,    0,    0x0a, 0x00, 0, 0, 0x05, 0x00};
     unsigned char bmp[26] = {'B', 'M'};
     unsigned char jpg_trunc[16] = {0xff, 0xd8, 0xff, 0xe0, 0, 16};
     long w = 0, h = 0;
@@ -152,13 +156,18 @@ static void probes_headers(void **state)
     assert_int_equal(w, 2560);
     assert_int_equal(h, 1280);
     assert_int_equal(shim_probe_size(png, 20, &w, &h, err), -1);
-    bmp[18] = 0x40; bmp[22] = 0xff; bmp[23] = 0xff; bmp[24] = 0xff; bmp[25] = 0xff; /* height -1: top-down */
+    bmp[18] = 0x40;
+    bmp[22] = 0xff;
+    bmp[23] = 0xff;
+    bmp[24] = 0xff;
+    bmp[25] = 0xff; /* height -1: top-down */
     assert_int_equal(shim_probe_size(bmp, sizeof bmp, &w, &h, err), 0);
     assert_int_equal(w, 64);
     assert_int_equal(h, 1);
     assert_int_equal(shim_probe_size(jpg_trunc, sizeof jpg_trunc, &w, &h, err), -1);
     assert_non_null(strstr(err, "truncated JPEG"));
-    assert_int_equal(shim_probe_size((const unsigned char *)"P6\n# c\n 30 20\n255\n", 19, &w, &h, err), 0);
+    assert_int_equal(
+        shim_probe_size((const unsigned char *)"P6\n# c\n 30 20\n255\n", 19, &w, &h, err), 0);
     assert_int_equal(w, 30);
     assert_int_equal(h, 20);
     assert_int_equal(shim_probe_size((const unsigned char *)"GIF89a", 6, &w, &h, err), 1);
@@ -169,8 +178,8 @@ static void decode_refuses_garbage_and_huge(void **state)
     shim_mat *m = shim_mat_new();
     pi_frame f;
     char err[PI_ERR_LEN];
-    unsigned char png[24] = {0x89, 'P', 'N', 'G', 0x0d, 0x0a, 0x1a, 0x0a, 0, 0, 0, 13, 'I', 'H', 'D', 'R',
-                             0, 1, 0, 0, 0, 1, 0, 0};
+    unsigned char png[24] = {0x89, 'P', 'N', 'G', 0x0d, 0x0a, 0x1a, 0x0a, 0, 0, 0, 13,
+                             'I',  'H', 'D', 'R', 0,    1,    0,    0,    0, 1, 0, 0};
     (void)state;
     assert_int_equal(shim_decode(m, "hello", 5, PI_DEFAULT_MAX_PIXELS, &f, err), -1);
     assert_non_null(strstr(err, "cannot decode"));
@@ -199,7 +208,8 @@ static void roundtrip_through_save_and_decode(void **state)
     assert_int_equal(g.width, 64);
     assert_int_equal(g.height, 48);
     assert_int_equal(g.channels, 3);
-    for (int y = 0; y < 48; y++) assert_memory_equal(g.data + y * g.stride, img + y * 64 * 3, 64 * 3);
+    for (int y = 0; y < 48; y++)
+        assert_memory_equal(g.data + y * g.stride, img + y * 64 * 3, 64 * 3);
     assert_int_equal(pi_read_file("/nonexistent.png", &buf, &cap, &len, err), -1);
     assert_non_null(strstr(err, "open(/nonexistent.png): No such file"));
     assert_int_equal(pi_read_file("/tmp", &buf, &cap, &len, err), -1);
@@ -219,14 +229,23 @@ static void preprocess_metadata(void **state)
     assert_int_equal(p.size, 128);
     assert_true(p.margin == 1.15 && p.fg_threshold == 40 && p.min_area_frac == 0.002);
     assert_true(p.mean[1] == 0.456f && p.std[2] == 0.225f);
-    assert_int_equal(pi_parse_preprocess("{\"name\": \"sphere-crop-v1\", \"size\": 96, \"margin\": 1.15, "
-                                         "\"fg_threshold\": 25.5, \"border_frac\": 0.02, \"close_frac\": 0.03, "
-                                         "\"min_area_frac\": 0.002, \"mean\": [0, 0, 0], \"std\": [1, 1, 1]}",
-                                         &p, err, "m.onnx"), 0);
+    assert_int_equal(
+        pi_parse_preprocess("{\"name\": \"sphere-crop-v1\", \"size\": 96, \"margin\": 1.15, "
+                            "\"fg_threshold\": 25.5, \"border_frac\": 0.02, \"close_frac\": 0.03, "
+                            "\"min_area_frac\": 0.002, \"mean\": [0, 0, 0], \"std\": [1, 1, 1]}",
+                            &p, err, "m.onnx"),
+        0);
     assert_int_equal(p.size, 96);
     assert_true(p.std[2] == 1.0f && p.fg_threshold == 25.5);
-    static const char *bad[] = {"[]", "{\"name\": \"other\"}", "{\"size\": 96.5}", "{\"size\": 0}",
-                                "{\"std\": [1, 0, 1]}", "{\"mean\": [1, 2]}", "{\"margin\": \"big\"}", "{", NULL};
+    static const char *bad[] = {"[]",
+                                "{\"name\": \"other\"}",
+                                "{\"size\": 96.5}",
+                                "{\"size\": 0}",
+                                "{\"std\": [1, 0, 1]}",
+                                "{\"mean\": [1, 2]}",
+                                "{\"margin\": \"big\"}",
+                                "{",
+                                NULL};
     for (int i = 0; bad[i]; i++) {
         assert_int_equal(pi_parse_preprocess(bad[i], &p, err, "m.onnx"), -1);
         assert_non_null(strstr(err, "pi_open(m.onnx): metadata spherepose.preprocess"));
@@ -246,12 +265,14 @@ static void preprocess_metadata_v1_needs_every_key(void **state)
     char err[PI_ERR_LEN], want[64];
     (void)state;
     assert_int_equal(pi_parse_preprocess("{}", &p, err, "m.onnx"), -1);
-    assert_string_equal(err, "pi_open(m.onnx): metadata spherepose.preprocess: needs key \"name\" (the "
-                             "preprocessing, \"sphere-crop-v1\" or \"sphere-crop-v2\")");
+    assert_string_equal(err,
+                        "pi_open(m.onnx): metadata spherepose.preprocess: needs key \"name\" (the "
+                        "preprocessing, \"sphere-crop-v1\" or \"sphere-crop-v2\")");
     for (size_t i = 0; i < sizeof keys / sizeof keys[0]; i++) {
         /* the full set less keys[i] */
         char json[512] = "{\"name\": \"sphere-crop-v1\"";
-#define V1_ADD(k, v) if (strcmp(k, keys[i])) strcat(json, V1_JSON_KEY(k, v));
+#define V1_ADD(k, v) \
+    if (strcmp(k, keys[i])) strcat(json, V1_JSON_KEY(k, v));
         V1_KEYS(V1_ADD)
 #undef V1_ADD
         strcat(json, "}");

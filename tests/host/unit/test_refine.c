@@ -36,7 +36,8 @@ static uint8_t *make_texture(unsigned seed)
         seed = seed * 1103515245u + 12345u;
         int x = (int)((seed >> 8) % TW), y = (int)((seed >> 4) % (TH - 80)) + 40;
         seed = seed * 1103515245u + 12345u;
-        int horiz = (seed >> 9) & 1, len = 80 + (int)((seed >> 12) % 320), th = 24 + (int)((seed >> 20) % 20);
+        int horiz = (seed >> 9) & 1, len = 80 + (int)((seed >> 12) % 320),
+            th = 24 + (int)((seed >> 20) % 20);
         const uint8_t *c = cols[(seed >> 24) % 3];
         for (int j = 0; j < (horiz ? th : len); j++)
             for (int i = 0; i < (horiz ? len : th); i++) {
@@ -58,14 +59,24 @@ static uint8_t *render(const uint8_t *tex, const double R[3][3], double cx, doub
             double acc[3] = {0, 0, 0};
             for (int a = 0; a < 4; a++)
                 for (int b = 0; b < 4; b++) {
-                    double x = (u + (b + 0.5) / 4 - cx) / F_PX, y = -(v + (a + 0.5) / 4 - cy) / F_PX;
+                    double x = (u + (b + 0.5) / 4 - cx) / F_PX,
+                           y = -(v + (a + 0.5) / 4 - cy) / F_PX;
                     double L = sqrt(x * x + y * y + 1), d[3] = {x / L, y / L, -1 / L};
                     double od = D_MM * d[2], disc = od * od - (D_MM * D_MM - R_MM * R_MM);
-                    if (disc < 0) { acc[0] += 64; acc[1] += 64; acc[2] += 70; continue; }
-                    double t = -od - sqrt(disc), n[3] = {t * d[0] / R_MM, t * d[1] / R_MM, (D_MM + t * d[2]) / R_MM};
+                    if (disc < 0) {
+                        acc[0] += 64;
+                        acc[1] += 64;
+                        acc[2] += 70;
+                        continue;
+                    }
+                    double t = -od - sqrt(disc),
+                           n[3] = {t * d[0] / R_MM, t * d[1] / R_MM, (D_MM + t * d[2]) / R_MM};
                     double bd[3];
-                    for (int i = 0; i < 3; i++) bd[i] = R[0][i] * n[0] + R[1][i] * n[1] + R[2][i] * n[2];
-                    double lon = atan2(bd[0], bd[2]), lat = asin(bd[1] > 1 ? 1 : bd[1] < -1 ? -1 : bd[1]);
+                    for (int i = 0; i < 3; i++)
+                        bd[i] = R[0][i] * n[0] + R[1][i] * n[1] + R[2][i] * n[2];
+                    double lon = atan2(bd[0], bd[2]), lat = asin(bd[1] > 1    ? 1
+                                                                 : bd[1] < -1 ? -1
+                                                                              : bd[1]);
                     int ti = ((int)floor((lon + M_PI) / (2 * M_PI) * TW) % TW + TW) % TW;
                     int tj = (int)floor((M_PI / 2 - lat) / M_PI * TH);
                     if (tj < 0) tj = 0;
@@ -73,7 +84,8 @@ static uint8_t *render(const uint8_t *tex, const double R[3][3], double cx, doub
                     double s = 0.45 + 0.2 * n[1] + 0.4 * n[2];
                     for (int c = 0; c < 3; c++) acc[c] += tex[((size_t)tj * TW + ti) * 3 + c] * s;
                 }
-            for (int c = 0; c < 3; c++) img[((size_t)v * FW + u) * 3 + c] = (uint8_t)(acc[c] / 16 + 0.5);
+            for (int c = 0; c < 3; c++)
+                img[((size_t)v * FW + u) * 3 + c] = (uint8_t)(acc[c] / 16 + 0.5);
         }
     return img;
 }
@@ -87,7 +99,10 @@ static double geodesic_deg(const double A[3][3], const double B[3][3])
     return acos(c > 1 ? 1 : c < -1 ? -1 : c) * 180 / M_PI;
 }
 
-static double r_true(void) { return F_PX * R_MM / sqrt(D_MM * D_MM - R_MM * R_MM); }
+static double r_true(void)
+{
+    return F_PX * R_MM / sqrt(D_MM * D_MM - R_MM * R_MM);
+}
 
 static void refines_pose_and_circle(void **state)
 {
@@ -111,19 +126,24 @@ static void refines_pose_and_circle(void **state)
         rf_euler_to_matrix(off, R0);
         rf_out o;
         double r = r_true();
-        assert_int_equal(rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, 0, 1, &o, err, sizeof err), 0);
+        assert_int_equal(
+            rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, 0, 1, &o, err, sizeof err), 0);
         double g = geodesic_deg(o.R, R);
-        printf("  pose %d: %.4f deg off, centre %+.3f %+.3f px, radius %+.3f px, residual %.4f, %d steps\n", k, g,
-               o.cx - cx, o.cy - cy, o.r - r, o.residual, o.iterations);
-        assert_true(g < 0.1);   /* the target, as a mean per axis: 0.1 deg */
+        printf("  pose %d: %.4f deg off, centre %+.3f %+.3f px, radius %+.3f px, residual %.4f, %d "
+               "steps\n",
+               k, g, o.cx - cx, o.cy - cy, o.r - r, o.residual, o.iterations);
+        assert_true(g < 0.1); /* the target, as a mean per axis: 0.1 deg */
         assert_true(fabs(o.cx - cx) < 0.25 && fabs(o.cy - cy) < 0.25 && fabs(o.r - r) < 0.25);
         assert_true(o.residual < 0.02);
         /* the same with the focal length known */
-        assert_int_equal(rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, F_PX, 1, &o, err, sizeof err), 0);
+        assert_int_equal(
+            rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, F_PX, 1, &o, err, sizeof err),
+            0);
         assert_true(geodesic_deg(o.R, R) < 0.1);
         /* steps = 0: R0 kept, the residual at it is larger */
         rf_out o0;
-        assert_int_equal(rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, 0, 0, &o0, err, sizeof err), 0);
+        assert_int_equal(
+            rf_refine(t, w, &fi, cx + 1.2, cy - 0.9, r * 1.01, R0, 0, 0, &o0, err, sizeof err), 0);
         memcpy(Rp, o0.R, sizeof Rp);
         assert_true(geodesic_deg(Rp, R0) == 0 && o0.iterations == 0);
         assert_true(o0.residual > 2 * o.residual);
@@ -170,8 +190,10 @@ static void refuses_bad_input(void **state)
     rf_euler_to_matrix(e, R);
     uint8_t frame[64 * 48 * 3] = {0};
     rf_image fi = {frame, 64, 48, 3, 64 * 3};
-    assert_int_equal(rf_refine(t, w, &fi, 500, 500, 30, R, 0, 1, &o, err, sizeof err), -1); /* off the frame */
-    assert_int_equal(rf_refine(t, w, &fi, 32, 24, 3, R, 0, 1, &o, err, sizeof err), -1);    /* too small */
+    assert_int_equal(rf_refine(t, w, &fi, 500, 500, 30, R, 0, 1, &o, err, sizeof err),
+                     -1); /* off the frame */
+    assert_int_equal(rf_refine(t, w, &fi, 32, 24, 3, R, 0, 1, &o, err, sizeof err),
+                     -1); /* too small */
     assert_int_equal(rf_refine(t, w, &fi, NAN, 24, 20, R, 0, 1, &o, err, sizeof err), -1);
     rf_work_free(w);
     rf_texture_free(t);
@@ -191,8 +213,8 @@ static void base64(void **state)
     assert_int_equal(n, 0);
     free(out);
     assert_int_equal(rf_base64_decode("aGVsbG8*", &out, &n), -1);
-    assert_int_equal(rf_base64_decode("aGVsbG8", &out, &n), -1);   /* not a multiple of 4 */
-    assert_int_equal(rf_base64_decode("aG=sbG8=", &out, &n), -1);  /* data after padding */
+    assert_int_equal(rf_base64_decode("aGVsbG8", &out, &n), -1);  /* not a multiple of 4 */
+    assert_int_equal(rf_base64_decode("aG=sbG8=", &out, &n), -1); /* data after padding */
 }
 
 static void euler_roundtrip(void **state)
@@ -212,9 +234,12 @@ static void confidence_rules(void **state)
     rf_conf c;
     char err[256], note[160];
     rf_conf_defaults(&c);
-    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05}", "{\"x\": [-30, 30], \"y\": [-30, 30], \"z\": [-20, 40]}",
-                                   err, sizeof err), 0);
-    assert_true(c.residual_max == 0.05 && c.residual_max_unrefined == 0.05 && c.range_margin_deg == 2.0);
+    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05}",
+                                   "{\"x\": [-30, 30], \"y\": [-30, 30], \"z\": [-20, 40]}", err,
+                                   sizeof err),
+                     0);
+    assert_true(c.residual_max == 0.05 && c.residual_max_unrefined == 0.05 &&
+                c.range_margin_deg == 2.0);
     double in[3] = {10, -29, 41.9}, out[3] = {0, 45.04, 0}, zero[3] = {0, 0, 0};
     assert_int_equal(rf_judge(&c, 0.01, in, 1, note, sizeof note), 1);
     assert_string_equal(note, "");
@@ -223,8 +248,9 @@ static void confidence_rules(void **state)
     assert_int_equal(rf_judge(&c, 0.01, out, 1, note, sizeof note), 0);
     assert_string_equal(note, "outside the model's ranges (y = 45.0 not in [-30, 30])");
     assert_int_equal(rf_judge(&c, NAN, zero, 1, note, sizeof note), 0);
-    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05, \"residual_max_unrefined\": 0.3}", NULL, err,
-                                   sizeof err), 0);
+    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05, \"residual_max_unrefined\": 0.3}",
+                                   NULL, err, sizeof err),
+                     0);
     assert_int_equal(rf_judge(&c, 0.2, zero, 0, note, sizeof note), 1);
     assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 2}", NULL, err, sizeof err), -1);
     assert_non_null(strstr(err, "residual_max"));

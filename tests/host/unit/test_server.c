@@ -26,7 +26,8 @@
 #include "poseinfer.h"
 #include "server.h"
 
-static void reply_as(app *a, peer *p, const char *line, sbuf *out, const char *want_substr, int want_rc)
+static void reply_as(app *a, peer *p, const char *line, sbuf *out, const char *want_substr,
+                     int want_rc)
 {
     int rc;
     sb_reset(out);
@@ -138,15 +139,22 @@ static void allowed_directories(void **state)
     int fd;
     (void)state;
     assert_non_null(mkdtemp(root));
-    snprintf(p, sizeof p, "%s/ok", root); assert_int_equal(mkdir(p, 0700), 0);
-    snprintf(p, sizeof p, "%s/ok/sub", root); assert_int_equal(mkdir(p, 0700), 0);
-    snprintf(p, sizeof p, "%s/secret", root); assert_int_equal(mkdir(p, 0700), 0);
-    snprintf(p, sizeof p, "%s/secret/s.png", root); close(creat(p, 0600));
-    snprintf(p, sizeof p, "%s/ok/sub/a.png", root); close(creat(p, 0600));
+    snprintf(p, sizeof p, "%s/ok", root);
+    assert_int_equal(mkdir(p, 0700), 0);
+    snprintf(p, sizeof p, "%s/ok/sub", root);
+    assert_int_equal(mkdir(p, 0700), 0);
+    snprintf(p, sizeof p, "%s/secret", root);
+    assert_int_equal(mkdir(p, 0700), 0);
+    snprintf(p, sizeof p, "%s/secret/s.png", root);
+    close(creat(p, 0600));
+    snprintf(p, sizeof p, "%s/ok/sub/a.png", root);
+    close(creat(p, 0600));
     char target[512];
     snprintf(target, sizeof target, "%s/secret/s.png", root);
-    snprintf(p, sizeof p, "%s/ok/link.png", root); assert_int_equal(symlink(target, p), 0);
-    snprintf(p, sizeof p, "%s/ok/inside.png", root); assert_int_equal(symlink("sub/a.png", p), 0);
+    snprintf(p, sizeof p, "%s/ok/link.png", root);
+    assert_int_equal(symlink(target, p), 0);
+    snprintf(p, sizeof p, "%s/ok/inside.png", root);
+    assert_int_equal(symlink("sub/a.png", p), 0);
 
     config_init(&cfg);
     assert_int_equal(access_init(&acc, &cfg, err), 0);
@@ -166,11 +174,13 @@ static void allowed_directories(void **state)
     fd = access_open(&acc, p, err);
     assert_true(fd >= 0);
     close(fd);
-    const char *outside[] = {"/ok/link.png", "/ok/../secret/s.png", "/secret/s.png", "/secret/none.png",
-                             "/okay/x.png", NULL};
+    const char *outside[] = {"/ok/link.png",     "/ok/../secret/s.png", "/secret/s.png",
+                             "/secret/none.png", "/okay/x.png",         NULL};
     for (size_t i = 0; i < sizeof outside / sizeof *outside; i++) {
-        if (outside[i]) snprintf(p, sizeof p, "%s%s", root, outside[i]);
-        else snprintf(p, sizeof p, "/etc/passwd");
+        if (outside[i])
+            snprintf(p, sizeof p, "%s%s", root, outside[i]);
+        else
+            snprintf(p, sizeof p, "/etc/passwd");
         assert_int_equal(access_open(&acc, p, err), -1);
         if (!strstr(err, "not in an allowed directory")) fail_msg("%s: %s", p, err);
     }
@@ -304,7 +314,10 @@ static pid_t serve_script(const char *path, const char *const *replies, int n)
         for (int i = 0; i < n; i++) {
             ssize_t r = read(c, buf, sizeof buf);
             if (r <= 0) break;
-            if (replies[i][0] == '\0') { sleep(5); break; } /* silent */
+            if (replies[i][0] == '\0') {
+                sleep(5);
+                break;
+            } /* silent */
             if (write(c, replies[i], strlen(replies[i])) < 0) break;
         }
         _exit(0);
