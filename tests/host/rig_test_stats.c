@@ -13,6 +13,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "conv_vectors.h"
 #include "rig_plan.h"
 #include "rig_report.h"
 #include "rig_stats.h"
@@ -40,37 +41,20 @@ static void test_errors_wrapped(void **state)
     assert_float_equal(e[2], 0.75, 1e-9);
 }
 
-/* tests/data/conventions_vectors.json, pose -> R. */
+/* Every case of tests/data/conventions_vectors.json, pose -> R: the header is
+ * generated from that file when the test is built (host/rig/Makefile), so the
+ * vectors have one source. */
 static void test_matrix_vectors(void **state)
 {
-    static const struct {
-        double pose[3];
-        double R[3][3];
-    } v[] = {
-        {{30, 0, 0}, {{1, 0, 0}, {0, 0.866025404, -0.5}, {0, 0.5, 0.866025404}}},
-        {{0, 30, 0}, {{0.866025404, 0, 0.5}, {0, 1, 0}, {-0.5, 0, 0.866025404}}},
-        {{0, 0, 30}, {{0.866025404, -0.5, 0}, {0.5, 0.866025404, 0}, {0, 0, 1}}},
-        {{12, -27, 6},
-         {{0.886125497, -0.19611712, -0.419904368},
-          {0.093135543, 0.962922771, -0.253190654},
-          {0.4539905, 0.185250673, 0.871535894}}},
-        {{-30, 30, -30},
-         {{0.75, 0.216506351, 0.625},
-          {-0.433012702, 0.875, 0.216506351},
-          {-0.5, -0.433012702, 0.75}}},
-        {{7.5, 3.25, -14.125},
-         {{0.968205923, 0.249126557, 0.022654992},
-          {-0.243645681, 0.95966329, -0.140296657},
-          {-0.056692788, 0.130316263, 0.989850291}}},
-    };
     size_t c;
     int i, k;
     (void)state;
-    for (c = 0; c < sizeof(v) / sizeof(v[0]); c++) {
+    assert_int_equal(CONV_N_CASES, 7); /* docs/conventions.md, "Test vectors" */
+    for (c = 0; c < CONV_N_CASES; c++) {
         double R[3][3];
-        rig_euler_to_matrix(v[c].pose, R);
+        rig_euler_to_matrix(conv_cases[c].pose, R);
         for (i = 0; i < 3; i++)
-            for (k = 0; k < 3; k++) assert_float_equal(R[i][k], v[c].R[i][k], 1e-8);
+            for (k = 0; k < 3; k++) assert_float_equal(R[i][k], conv_cases[c].R[i][k], 1e-8);
     }
 }
 
