@@ -8,9 +8,17 @@ truth.jsonl (sim dataset --scene, or any generator writing that file).
 
     python bench/localise.py --frames 60 --seed 1 [--camera] [--out frames/]
     python bench/localise.py --truth DIR/truth.jsonl [--camera-file CAM.json]
+    python bench/localise.py --set rig=DIR/truth.jsonl@CAM.json --set val=DIR2/truth.jsonl
+        --refuse refuse=DIR3/truth.jsonl@CAM.json --jobs 2 [--dump frames.jsonl]
 
 Prints, per algorithm, centre error (px) and radius error (%) median / p95 / max, and how many
 frames raised an error. --camera passes the camera (expected radius) to v2.
+
+With --set / --refuse (sphere-crop-v2 only, each frame with its camera: the set's camera file
+after "@", else the frame's own from truth.jsonl): one table row per set, with the share of
+frames answered, of frames answered within the target (centre <= 0.5 px and radius <= 0.5 %)
+and within 2 px / 2 %; a --refuse set counts the frames that raised an error (by the
+"refuse" kind of each frame's scene when there is one), since no answer is right there.
 """
 import argparse
 import json
@@ -76,6 +84,78 @@ def truth_frames(path):
         yield img, (cx - 0.5, cy - 0.5, r), cam
 
 
+def _one(job):
+    """One frame of a --set / --refuse run: (set, file, kind, error text or None, centre err, radius err %)."""
+    name, root, t, cam_file = job
+    img = cv2.imread(str(Path(root) / t["file"]), cv2.IMREAD_COLOR)
+    cam = cam_file
+    sc = (t.get("scene") or {}).get("camera")
+    if cam is None and sc:
+        cam = {"width": img.shape[1], "height": img.shape[0], "focal_mm": sc["focal_px"] * 0.0096,
+               "pixel_mm": 0.0096, "distance_mm": sc["distance_mm"], "sphere_diameter_mm": 40.0,
+               "principal_px": sc["principal_px"], "distortion": sc["distortion"]}
+    p = pp.params(os.environ.get("SPHEREPOSE_PP_OVERRIDE") or None)
+    kind = (t.get("scene") or {}).get("refuse")
+    try:
+        frame = pp.undistort(img, cam) if cam is not None else img
+        fx, fy, fr, _ = pp.find_sphere(frame, p, cam)
+    except pp.NoSphere as e:
+        return name, t["file"], kind, str(e), None, None
+    if not t.get("circle"):
+        return name, t["file"], kind, None, None, None
+    cx, cy, r = t["circle"]
+    return name, t["file"], kind, None, math.hypot(fx - (cx - 0.5), fy - (cy - 0.5)), abs(fr / r - 1) * 100
+
+
+def run_sets(sets, refuse, jobs, dump):
+    """The --set / --refuse measurement: one row per set (see the module's help)."""
+    import multiprocessing
+    work = []
+    for spec, is_refuse in [(s, False) for s in sets] + [(s, True) for s in refuse]:
+        name, _, rest = spec.partition("=")
+        path, _, camf = rest.partition("@")
+        if not path:
+            raise SystemExit(f"--set/--refuse {spec!r}: expected NAME=TRUTH.jsonl[@CAMERA.json]")
+        cam = json.loads(Path(camf).read_text()) if camf else None
+        root = Path(path).parent
+        for line in Path(path).read_text().splitlines():
+            work.append(((name, is_refuse), (name, str(root), json.loads(line), cam)))
+    t0 = time.perf_counter()
+    with multiprocessing.Pool(max(1, jobs)) as pool:
+        out = pool.map(_one, [w for _, w in work], chunksize=4)
+    secs = time.perf_counter() - t0
+    if dump:
+        with open(dump, "w") as f:
+            for (name, _), (_, file, kind, err, ec, er) in zip(work, out):
+                f.write(json.dumps({"set": name, "file": file, "kind": kind, "error": err,
+                                    "centre_px": ec, "radius_pct": er}) + "\n")
+    print("| frames | n | answered | within 0.5 px and 0.5 % | within 2 px and 2 % | "
+          "centre px median / p95 / max | radius % median / p95 / max |")
+    print("| --- | ---: | ---: | ---: | ---: | --- | --- |")
+    names = list(dict.fromkeys(k for k, _ in work))
+    for name, is_refuse in names:
+        rows = [o for (k, _), o in zip(work, out) if k == (name, is_refuse)]
+        n = len(rows)
+        if is_refuse:
+            kinds = sorted({str(o[2]) for o in rows})
+            parts = []
+            for kd in kinds:
+                rk = [o for o in rows if str(o[2]) == kd]
+                parts.append(f"{kd} {sum(o[3] is not None for o in rk)}/{len(rk)}")
+            print(f"| {name} (to refuse) | {n} | refused {sum(o[3] is not None for o in rows)} "
+                  f"({', '.join(parts)}) | | | | |")
+            continue
+        ans = [o for o in rows if o[3] is None]
+        c = np.array([o[4] for o in ans]) if ans else np.zeros(0)
+        r = np.array([o[5] for o in ans]) if ans else np.zeros(0)
+        good = int(((c <= 0.5) & (r <= 0.5)).sum())
+        ok2 = int(((c <= 2) & (r <= 2)).sum())
+        stat = (lambda a: f"{np.median(a):.3f} / {np.percentile(a, 95):.3f} / {a.max():.3f}") if len(ans) else (lambda a: "-")
+        print(f"| {name} | {n} | {100 * len(ans) / n:.1f} % | {100 * good / n:.1f} % | {100 * ok2 / n:.1f} % | "
+              f"{stat(c)} | {stat(r)} |")
+    print(f"({len(work)} frames, {secs:.0f} s with {jobs} processes)")
+
+
 def summarise(name, errs, fails, n, ms):
     e = np.array(errs) if errs else np.zeros((0, 2))
     if len(e):
@@ -100,7 +180,16 @@ def main(argv=None):
     ap.add_argument("--out", help="also write the composite frames here")
     ap.add_argument("--verbose", action="store_true", help="each frame's errors (stderr)")
     ap.add_argument("--v1", action="store_true", help="measure sphere-crop-v1 too")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=TRUTH[@CAMERA]",
+                    help="a frame set to measure (repeatable; see above)")
+    ap.add_argument("--refuse", action="append", default=[], metavar="NAME=TRUTH[@CAMERA]",
+                    help="a frame set every frame of which must raise an error (repeatable)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes for --set / --refuse (default 1)")
+    ap.add_argument("--dump", help="with --set / --refuse: each frame's result as JSON lines here")
     args = ap.parse_args(argv)
+    if args.set or args.refuse:
+        run_sets(args.set, args.refuse, args.jobs, args.dump)
+        return
     if args.out:
         Path(args.out).mkdir(parents=True, exist_ok=True)
         (Path(args.out) / "truth.jsonl").unlink(missing_ok=True)
