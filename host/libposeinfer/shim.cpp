@@ -179,6 +179,18 @@ extern "C" int shim_probe_size(const unsigned char *buf, size_t len, long *w, lo
     return 1;
 }
 
+// The pi_frame view of an 8-bit image (no copy: valid while `m` is), for
+// both frame sources, the decoder and VideoCapture.
+static void frame_from_mat(const cv::Mat &m, pi_frame *out)
+{
+    out->data = m.data;
+    out->width = m.cols;
+    out->height = m.rows;
+    out->channels = m.channels();
+    out->stride = m.step[0];
+    out->decode_ms = 0;
+}
+
 extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_frame *out,
                            char *err)
 {
@@ -222,12 +234,7 @@ extern "C" int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pi
             m->m.release();
             return -1;
         }
-        out->data = m->m.data;
-        out->width = m->m.cols;
-        out->height = m->m.rows;
-        out->channels = m->m.channels();
-        out->stride = m->m.step[0];
-        out->decode_ms = 0;
+        frame_from_mat(m->m, out);
         return 0;
     }
     SHIM_CATCH("decode")
@@ -549,12 +556,7 @@ extern "C" int shim_cap_grab(shim_cap *c, pi_frame *out, char *err)
             return -1;
         }
         if (c->frame.depth() != CV_8U) c->frame.convertTo(c->frame, CV_8U);
-        out->data = c->frame.data;
-        out->width = c->frame.cols;
-        out->height = c->frame.rows;
-        out->channels = c->frame.channels();
-        out->stride = c->frame.step[0];
-        out->decode_ms = 0;
+        frame_from_mat(c->frame, out);
         return 0;
     }
     SHIM_CATCH("VideoCapture.read")
