@@ -187,7 +187,8 @@ int pp_camera_load(const char *path, pp_camera *cam, char *err)
     char jerr[128];
     int rc = -1;
     memset(cam, 0, sizeof *cam);
-    /* the reference camera (docs/conventions.md) for missing keys */
+    /* the reference camera for missing keys: tests/data/conventions_vectors.json
+     * "camera" (tests/host/unit/test_camera_ref.c holds these to it) */
     cam->width = 640;
     cam->height = 512;
     cam->focal_mm = 16.0;
