@@ -6,6 +6,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <limits.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -60,14 +61,14 @@ static int add_allow_dir(pi_config *c, const char *v, char *err)
     return 0;
 }
 
-/* An octal mode such as 0660 or 660, at most 0777. */
-static int set_mode(int *dst, const char *key, const char *v, char *err)
+/* An octal mode such as 0660 or 660, at most hi (0777). */
+static int set_mode(int *dst, const char *key, const char *v, long hi, char *err)
 {
     char *end;
     long n;
     errno = 0;
     n = strtol(v, &end, 8);
-    if (errno || end == v || *end != '\0' || n < 0 || n > 0777) {
+    if (errno || end == v || *end != '\0' || n < 0 || n > hi) {
         pi_seterr(err, "%s: expected an octal mode such as 0660, got \"%.64s\"", key, v);
         return -1;
     }
@@ -136,36 +137,63 @@ static int set_bool(int *dst, const char *key, const char *v, char *err)
     return 0;
 }
 
+/* The keys, one table: config_set reads it, config_key lists it (the unit
+ * test holds it to docs/poseinfer.md's table of keys and defaults). */
+enum key_kind { K_STR, K_BOOL, K_INT, K_LONG, K_MODE, K_DIR };
+static const struct key_def {
+    const char *name;
+    enum key_kind kind;
+    size_t off; /* of the field in pi_config */
+    long lo, hi;
+} keys[] = {
+    {"model", K_STR, offsetof(pi_config, model), 0, 0},
+    {"serve", K_STR, offsetof(pi_config, serve), 0, 0},
+    {"camera", K_STR, offsetof(pi_config, camera), 0, 0},
+    {"camera_file", K_STR, offsetof(pi_config, camera_file), 0, 0},
+    {"continuous", K_BOOL, offsetof(pi_config, continuous), 0, 0},
+    {"timings", K_BOOL, offsetof(pi_config, timings), 0, 0},
+    {"refine", K_BOOL, offsetof(pi_config, refine), 0, 0},
+    {"count", K_LONG, offsetof(pi_config, count), 0, LONG_MAX},
+    {"interval_ms", K_INT, offsetof(pi_config, interval_ms), 0, 3600000},
+    {"threads", K_INT, offsetof(pi_config, threads), 1, 256},
+    {"warmup", K_INT, offsetof(pi_config, warmup), 0, 100},
+    {"max_pixels", K_LONG, offsetof(pi_config, max_pixels), 64, 1L << 34},
+    {"timeout_ms", K_INT, offsetof(pi_config, timeout_ms), 1, 3600000},
+    {"socket_mode", K_MODE, offsetof(pi_config, socket_mode), 0, 0777},
+    {"socket_group", K_STR, offsetof(pi_config, socket_group), 0, 0},
+    {"allow_dir", K_DIR, offsetof(pi_config, allow_dirs), 0, 0},
+    {"tcp_remote", K_BOOL, offsetof(pi_config, tcp_remote), 0, 0},
+    {"token_file", K_STR, offsetof(pi_config, token_file), 0, 0},
+    {"workers", K_INT, offsetof(pi_config, workers), 1, 64},
+    {"max_clients", K_INT, offsetof(pi_config, max_clients), 1, 4096},
+    {"idle_timeout_ms", K_INT, offsetof(pi_config, idle_timeout_ms), 100, 86400000},
+    {"max_file_bytes", K_LONG, offsetof(pi_config, max_file_bytes), 1024, 1L << 31},
+};
+
+const char *config_key(int i)
+{
+    return i >= 0 && (size_t)i < sizeof keys / sizeof keys[0] ? keys[i].name : NULL;
+}
+
 int config_set(pi_config *c, const char *key_in, const char *v, char *err)
 {
     char key[64];
     size_t i;
     for (i = 0; key_in[i] && i < sizeof key - 1; i++) key[i] = key_in[i] == '-' ? '_' : key_in[i];
     key[i] = '\0';
-    if (!strcmp(key, "model")) return set_str(&c->model, v, err);
-    if (!strcmp(key, "serve")) return set_str(&c->serve, v, err);
-    if (!strcmp(key, "camera")) return set_str(&c->camera, v, err);
-    if (!strcmp(key, "camera_file")) return set_str(&c->camera_file, v, err);
-    if (!strcmp(key, "continuous")) return set_bool(&c->continuous, key, v, err);
-    if (!strcmp(key, "timings")) return set_bool(&c->timings, key, v, err);
-    if (!strcmp(key, "refine")) return set_bool(&c->refine, key, v, err);
-    if (!strcmp(key, "count")) return set_long(&c->count, key, v, 0, LONG_MAX, err);
-    if (!strcmp(key, "interval_ms")) return set_int(&c->interval_ms, key, v, 0, 3600000, err);
-    if (!strcmp(key, "threads")) return set_int(&c->threads, key, v, 1, 256, err);
-    if (!strcmp(key, "warmup")) return set_int(&c->warmup, key, v, 0, 100, err);
-    if (!strcmp(key, "max_pixels")) return set_long(&c->max_pixels, key, v, 64, 1L << 34, err);
-    if (!strcmp(key, "timeout_ms")) return set_int(&c->timeout_ms, key, v, 1, 3600000, err);
-    if (!strcmp(key, "socket_mode")) return set_mode(&c->socket_mode, key, v, err);
-    if (!strcmp(key, "socket_group")) return set_str(&c->socket_group, v, err);
-    if (!strcmp(key, "allow_dir")) return add_allow_dir(c, v, err);
-    if (!strcmp(key, "tcp_remote")) return set_bool(&c->tcp_remote, key, v, err);
-    if (!strcmp(key, "token_file")) return set_str(&c->token_file, v, err);
-    if (!strcmp(key, "workers")) return set_int(&c->workers, key, v, 1, 64, err);
-    if (!strcmp(key, "max_clients")) return set_int(&c->max_clients, key, v, 1, 4096, err);
-    if (!strcmp(key, "idle_timeout_ms"))
-        return set_int(&c->idle_timeout_ms, key, v, 100, 86400000, err);
-    if (!strcmp(key, "max_file_bytes"))
-        return set_long(&c->max_file_bytes, key, v, 1024, 1L << 31, err);
+    for (i = 0; i < sizeof keys / sizeof keys[0]; i++) {
+        const struct key_def *d = &keys[i];
+        void *field = (char *)c + d->off;
+        if (strcmp(key, d->name)) continue;
+        switch (d->kind) {
+        case K_STR: return set_str(field, v, err);
+        case K_BOOL: return set_bool(field, key, v, err);
+        case K_INT: return set_int(field, key, v, d->lo, d->hi, err);
+        case K_LONG: return set_long(field, key, v, d->lo, d->hi, err);
+        case K_MODE: return set_mode(field, key, v, d->hi, err);
+        case K_DIR: return add_allow_dir(c, v, err);
+        }
+    }
     pi_seterr(err,
               "unknown key \"%.64s\" (the keys: poseinfer --help, and docs/poseinfer.md, \"Config "
               "file\")",

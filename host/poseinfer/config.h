@@ -43,6 +43,9 @@ void config_free(pi_config *c);
  * err "reason". */
 int config_set(pi_config *c, const char *key, const char *value, char *err);
 
+/* The name of the i-th config file key (0, 1, ...), NULL past the last. */
+const char *config_key(int i);
+
 /* Forget the allow_dir list (a --allow-dir flag replaces the file's list). */
 void config_clear_allow_dirs(pi_config *c);
 
