@@ -19,7 +19,6 @@ colours (black, white, green, blue stripes and patches).
 import argparse
 import json
 import os
-import platform
 import shutil
 import sys
 import tempfile
@@ -28,6 +27,7 @@ import time
 import numpy as np
 from PIL import Image
 
+from machine import load_1min, machine
 from sim.dataset import DatasetConfig, build
 
 
@@ -46,17 +46,6 @@ def synthetic_texture(path, h=1024):
         tex[r:r + 20, c:c + 120] = (0, 0, 0) if rng.random() < 0.5 else green
     Image.fromarray(tex).save(path)
     return path
-
-
-def cpu_model():
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def run(texture, frames, workers, tmp, scene=None):
@@ -93,7 +82,7 @@ def main(argv=None):
     if args.scene:
         from sim.scene import load_scene
         scene = load_scene(args.scene)
-    load_before = os.getloadavg()[0]
+    load_before = load_1min()
     with tempfile.TemporaryDirectory(prefix="render_fps-") as tmp:
         texture = args.texture or synthetic_texture(os.path.join(tmp, "synthetic.png"))
         one = run(texture, args.frames, 1, tmp)
@@ -102,13 +91,12 @@ def main(argv=None):
             scene_one = run(texture, args.frames, 1, tmp, scene)
             scene_many = run(texture, args.frames, args.workers, tmp, scene)
     result = {
-        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "nproc": os.cpu_count(), "cpu": cpu_model(),
+        **machine(),
         "texture": os.path.basename(args.texture) if args.texture else "synthetic 2048x1024",
         "camera": "reference 640x512",
         "one_worker": one, "parallel": many,
         "speedup": round(many["frames_per_s"] / one["frames_per_s"], 2),
-        "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],  # before, after
+        "load_average_1min": [round(load_before, 2), round(load_1min(), 2)],  # before, after
     }
     print(f"render_fps: {one['frames']} frames, P1 plan, reference camera, nproc {result['nproc']} ({result['cpu']})")
     print(f"  1 worker : {one['frames_per_s']:7.1f} frames/s ({one['seconds']} s; "
@@ -124,7 +112,7 @@ def main(argv=None):
         print(f"  {scene_many['workers']} workers: {scene_many['frames_per_s']:7.1f} frames/s "
               f"({scene_many['seconds']} s); plain / scene: "
               f"{many['frames_per_s'] / scene_many['frames_per_s']:.1f}x")
-        result["load_average_1min"][1] = round(os.getloadavg()[0], 2)
+        result["load_average_1min"][1] = round(load_1min(), 2)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(result, f, indent=1)

@@ -28,7 +28,6 @@ import csv
 import hashlib
 import json
 import os
-import platform
 import shutil
 import signal
 import socket
@@ -38,17 +37,11 @@ import tempfile
 import time
 import uuid
 
+from machine import load_1min, machine
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.dirname(sys.executable)
 TEXTURE = os.path.join(REPO, "build", "textures", "Texture_3_color.png")
-
-
-def cpu_model():
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            return next((l.split(":", 1)[1].strip() for l in f if l.startswith("model name")), "unknown")
-    except OSError:
-        return platform.processor() or "unknown"
 
 
 def counts_for(frames):
@@ -115,7 +108,7 @@ def render_run(engine, workers, frames, tmp, address=None, scene=None):
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     n = rec["last_run"]["rendered"]
     res = {"engine": engine, "workers": workers, "frames": n, "seconds": round(wall, 2),
-           "frames_per_s": round(n / wall, 2), "load_1min": round(os.getloadavg()[0], 1)}
+           "frames_per_s": round(n / wall, 2), "load_1min": round(load_1min(), 1)}
     if engine == "local" and workers == 1:
         res["cpu_ms_per_frame"] = round(1000 * cpu / n, 2)   # rendered in this process
     return res, out
@@ -198,7 +191,7 @@ def train_run(data, procs, threads, tmp):
     shutil.rmtree(out)
     epoch_s = float(row["epoch_s"])
     return {"processes": procs, "threads_each": threads, "train_frames": n, "epoch_s": epoch_s,
-            "frames_per_s": round(n / epoch_s, 2), "command_s": round(wall, 1), "load_1min": round(os.getloadavg()[0], 1)}
+            "frames_per_s": round(n / epoch_s, 2), "command_s": round(wall, 1), "load_1min": round(load_1min(), 1)}
 
 
 def bench_train(args, tmp):
@@ -235,8 +228,7 @@ def main(argv=None):
     args = p.parse_args(argv)
     if not os.path.exists(TEXTURE):
         raise SystemExit(f"{TEXTURE} missing: make textures (or `textures generate --out build/textures`)")
-    result = {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "nproc": os.cpu_count(),
-              "cpu": cpu_model(), "load_1min_start": round(os.getloadavg()[0], 1), "command": " ".join(sys.argv)}
+    result = {**machine(), "load_1min_start": round(load_1min(), 1), "command": " ".join(sys.argv)}
     with tempfile.TemporaryDirectory(prefix="scale_bench-") as tmp:
         if not args.skip_render:
             print(f"rendering: {args.frames} frames per run, reference camera, Texture_3_color", flush=True)
@@ -251,7 +243,7 @@ def main(argv=None):
             print(f"training: {args.train_frames} frames, 320 x 256, 64 px, MobileNetV2, batch 32, 1 epoch", flush=True)
             result["train"] = bench_train(args, tmp)
             print(f"  ratios per round: {result['train']['ratios_per_round']}", flush=True)
-    result["load_1min_end"] = round(os.getloadavg()[0], 1)
+    result["load_1min_end"] = round(load_1min(), 1)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump(result, f, indent=1)
