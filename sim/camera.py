@@ -183,3 +183,15 @@ def load_camera(path=None):
     if path is None:
         return Camera()
     return camera_from_dict(read_json(path, "camera file", CameraError), source=str(path))
+
+
+def from_truth(drawn):
+    """Camera-file keys of a frame's camera as a rig scene's truth.jsonl line gives it ("scene":
+    {"camera": {"focal_px", "principal_px", "distortion", "distance_mm", ...}}, written by
+    sim/scene.draw): the focal length in pixels becomes focal_mm at the reference pixel pitch (only
+    their ratio matters). Width and height are left to the reader, who has the frame. KeyError,
+    TypeError or ValueError for a record without a usable focal_px."""
+    return {"focal_mm": float(drawn["focal_px"]) * REFERENCE["pixel_mm"], "pixel_mm": REFERENCE["pixel_mm"],
+            "distance_mm": float(drawn.get("distance_mm", REFERENCE["distance_mm"])),
+            "sphere_diameter_mm": float(drawn.get("sphere_diameter_mm", REFERENCE["sphere_diameter_mm"])),
+            "principal_px": drawn.get("principal_px"), "distortion": drawn.get("distortion")}

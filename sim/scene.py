@@ -410,7 +410,8 @@ def draw(scene, rng):
     u0, v0 = cam.principal
     return {
         # The frame's camera; with width, height, pixel pitch and sphere diameter a reader can rebuild
-        # a camera file for it (focal_mm = focal_px * pixel_mm).
+        # a camera file for it (focal_mm = focal_px * pixel_mm): sim.camera.from_truth, tested in
+        # tests/training/test_truth_camera.py.
         "camera": {"focal_px": f_px, "principal_px": [u0, v0], "distortion": coeffs, "distance_mm": dist_mm,
                    "width": cam.width, "height": cam.height, "pixel_mm": cam.pixel_mm,
                    "sphere_diameter_mm": cam.sphere_diameter_mm},

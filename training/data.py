@@ -99,7 +99,7 @@ def frame_cameras(root):
     path = Path(root) / "truth.jsonl"
     if not path.exists():
         return {}
-    from sim.camera import REFERENCE
+    from sim.camera import from_truth
     out = {}
     with open(path) as f:
         for n, line in enumerate(f, 1):
@@ -108,15 +108,26 @@ def frame_cameras(root):
                 cam = (rec.get("scene") or {}).get("camera")
                 if cam is None:
                     continue
-                out[rec["file"]] = {
-                    "focal_mm": float(cam["focal_px"]) * REFERENCE["pixel_mm"],
-                    "pixel_mm": REFERENCE["pixel_mm"],
-                    "distance_mm": float(cam.get("distance_mm", REFERENCE["distance_mm"])),
-                    "sphere_diameter_mm": float(cam.get("sphere_diameter_mm", REFERENCE["sphere_diameter_mm"])),
-                    "principal_px": cam.get("principal_px"), "distortion": cam.get("distortion")}
+                out[rec["file"]] = from_truth(cam)
             except (ValueError, KeyError, TypeError) as e:
                 raise DatasetError(f"{path}:{n}: not a truth record ({e})") from None
     return out
+
+
+def sized_camera(camera, frame, default=None):
+    """A frame's camera from its truth record (a frame_cameras value) with the width and height of
+    the frame as read, else `default` (a camera file's, or None: the runtime's search)."""
+    return default if camera is None else dict(camera, width=frame.shape[1], height=frame.shape[0])
+
+
+def frame_camera(folders, path, frame, default=None):
+    """The camera of the frame at `path` (`frame`, its image as read): its folder's truth.jsonl
+    record, read once per folder into the dict `folders`, sized to the frame (sized_camera); else
+    `default`. For tools that take frames from many folders (python -m training.refine)."""
+    path = Path(path)
+    if path.parent not in folders:
+        folders[path.parent] = frame_cameras(path.parent)
+    return sized_camera(folders[path.parent].get(path.name), frame, default)
 
 
 def _crop_file(path, params, camera=None):
@@ -126,8 +137,7 @@ def _crop_file(path, params, camera=None):
         raise DatasetError(f"{path}: cannot decode image (missing, corrupt or not an image)")
     if frame.dtype != np.uint8:
         raise DatasetError(f"{path}: expected 8-bit pixels, got {frame.dtype}")
-    if camera is not None:
-        camera = dict(camera, width=frame.shape[1], height=frame.shape[0])
+    camera = sized_camera(camera, frame)
     try:
         return pp.crop_frame(frame, params, camera)[0]
     except pp.NoSphere as e:
