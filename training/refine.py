@@ -560,7 +560,7 @@ def main(argv=None):
         if args.camera_file:
             from sim.camera import load_camera
             camera = load_camera(args.camera_file)
-        from training.data import frame_cameras
+        from training.data import frame_camera
         from training.preprocess import NoSphere, camera_geometry
         sess = onnx_session(args.model, 1)
         ref, folder_cams = Refiner(meta, None), {}
@@ -571,10 +571,7 @@ def main(argv=None):
                 print(json.dumps({"file": str(path), "error": "cannot decode image"}), flush=True)
                 continue
             # a rig scene's frame carries its own camera in its folder's truth.jsonl
-            if path.parent not in folder_cams:
-                folder_cams[path.parent] = frame_cameras(path.parent)
-            cam = folder_cams[path.parent].get(path.name)
-            cam = camera if cam is None else dict(cam, width=frame.shape[1], height=frame.shape[0])
+            cam = frame_camera(folder_cams, path, frame, camera)
             ref.focal = None if cam is None else camera_geometry(cam)[1]
             try:
                 frame, circle, euler = network_estimate(sess, meta, frame, cam)
