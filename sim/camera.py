@@ -16,7 +16,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-# The reference camera of the benchmarks (conventions.md, "Camera").
+# The reference camera of the benchmarks (conventions.md, "Camera"): the `camera` of
+# tests/data/conventions_vectors.json (tests/sim/test_reference_camera.py holds it to that file).
 REFERENCE = {"width": 640, "height": 512, "focal_mm": 16.0, "pixel_mm": 0.0096,
              "distance_mm": 250.0, "sphere_diameter_mm": 40.0}
 
