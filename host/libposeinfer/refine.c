@@ -27,13 +27,19 @@ struct rf_texture {
     float *px[RF_LEVELS]; /* [h][w][3], BGR; exact (8-bit values / 4^k) */
 };
 
-/* Per sampled pixel: what the second pass of a step needs. */
+/* Per sampled pixel: what a step's Jacobian pass needs from its value pass. */
 typedef struct rf_pix {
     double obs[3], val[3], n[3];
-    double jw[3][3]; /* d val_c / d omega (world rotation vector) */
-    double jt[3][3]; /* d val_c / d (cx, cy, r) */
-    int flat;        /* the texture is constant around it: J = 0 */
+    double grad[3][3]; /* d val_c / d b, the body direction */
+    double t;          /* the ray's length to the sphere */
+    int flat;          /* the texture is constant around it: J = 0 */
 } rf_pix;
+
+/* The photometric fit of one evaluation (per channel, 5 coefficients). */
+typedef struct rf_fit {
+    double AtA[3][6][6], Atb[3][6], coef[3][6];
+    double sse;
+} rf_fit;
 
 struct rf_work {
     int w[RF_LEVELS], h[RF_LEVELS]; /* the crop's size at each level */
@@ -42,6 +48,7 @@ struct rf_work {
     int x0, y0;
     rf_pix *pix;
     size_t pcap;
+    double sst; /* the sampled pixels' variance sum (pixel_set) */
 };
 
 static const int rf_iters[RF_LEVELS] = RF_ITERS_INIT;
@@ -372,6 +379,35 @@ static inline void normal_derivs(double u, double v, double cx, double cy, doubl
     }
 }
 
+/* atan2 (x86-64's libm takes about a sixth of refinement's time in it):
+ * Cephes' atan, a rational function on |t| <= 0.66 and atan(t) = pi/4 +
+ * atan((t - 1) / (t + 1)) above, within 2.3e-16 of libm on [-1, 1]; the
+ * quadrant from the signs. */
+static inline double atan2_fast(double y, double x)
+{
+    static const double P[5] = {-8.750608600031904122785e-1, -1.615753718733365076637e1,
+                                -7.500855792314704667340e1, -1.228866684490136173410e2,
+                                -6.485021904942025371773e1};
+    static const double Q[5] = {2.485846490142306297962e1, 1.650270098316988542046e2,
+                                4.328810604912902668951e2, 4.853903996359136964868e2,
+                                1.945506571482613964425e2};
+    double ax = fabs(x), ay = fabs(y);
+    if (ax == 0 && ay == 0) return atan2(y, x);
+    int swap = ay > ax;
+    double t = swap ? ax / ay : ay / ax, base = 0; /* t in [0, 1] */
+    if (t > 0.66) {
+        t = (t - 1) / (t + 1);
+        base = M_PI / 4;
+    }
+    double z = t * t;
+    double pz = (((P[0] * z + P[1]) * z + P[2]) * z + P[3]) * z + P[4];
+    double qz = ((((z + Q[0]) * z + Q[1]) * z + Q[2]) * z + Q[3]) * z + Q[4];
+    double a = base + (t * (z * pz / qz) + t); /* atan(min / max) */
+    if (swap) a = M_PI / 2 - a;
+    if (x < 0) a = M_PI - a;
+    return y < 0 ? -a : a;
+}
+
 /* Bilinear value (3 channels) at body direction b, and d value / d b. */
 static inline void tex_sample(const float *tex, int w, int h, const double b[3], double val[3],
                               double grad[3][3])
@@ -380,7 +416,7 @@ static inline void tex_sample(const float *tex, int w, int h, const double b[3],
     double rho2 = bx * bx + bz * bz;
     if (rho2 < 1e-12) rho2 = 1e-12;
     double rho = sqrt(rho2);
-    double lon = atan2(bx, bz);
+    double lon = atan2_fast(bx, bz);
     double lat = asin(by < -1 ? -1 : by > 1 ? 1 : by);
     double ut = (lon + M_PI) * (w / (2 * M_PI)) - 0.5;
     double vt = (M_PI / 2 - lat) * (h / M_PI) - 0.5;
@@ -480,123 +516,156 @@ static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int s
             (*uv)[2 * n + 1] = v;
             n++;
         }
+    /* the frame's variance sum over them: the residual's denominator */
+    double sum[3] = {0, 0, 0}, sst = 0;
+    for (long k = 0; k < n; k++)
+        for (int c = 0; c < 3; c++) sum[c] += w->pix[k].obs[c];
+    for (long k = 0; k < n; k++)
+        for (int c = 0; c < 3; c++) {
+            double d = w->pix[k].obs[c] - sum[c] / n;
+            sst += d * d;
+        }
+    w->sst = sst;
     return n;
 }
 
-/* One evaluation at (R, cx, cy, r) over the sampled pixels: photometric fit,
- * sse and sst; with H, g non-NULL also the normal equations of the step. */
+/* The value pass of an evaluation at (R, cx, cy, r): renders the texture at
+ * the sampled pixels (kept in w->pix for the Jacobian pass) and fits the
+ * photometric model; fit->sse is the sum of squares it leaves. */
 static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv, long np,
                      const double R[3][3], double cx, double cy, double r, double fixed_f,
-                     double *sse_out, double *sst_out, double H[6][6], double g[6])
+                     rf_fit *fit)
 {
     const float *tex = t->px[lev];
     int tw = t->w[lev], th = t->h[lev];
-    double f = focal_of(r, fixed_f);
     rf_geom geo;
-    geom_init(&geo, cx, cy, r, f);
-    double AtA[3][6][6], Atb[3][6], sum[3] = {0, 0, 0}, sum2[3] = {0, 0, 0};
-    memset(AtA, 0, sizeof AtA);
-    memset(Atb, 0, sizeof Atb);
+    geom_init(&geo, cx, cy, r, focal_of(r, fixed_f));
+    double oo[3], acc[3][20];
+    memset(fit, 0, sizeof *fit);
+    memset(acc, 0, sizeof acc);
     for (long k = 0; k < np; k++) {
         rf_pix *p = &w->pix[k];
-        double u = uv[2 * k], v = uv[2 * k + 1], b[3], grad[3][3], tt;
-        normal_at(u, v, &geo, p->n, &tt);
+        double b[3];
+        normal_at(uv[2 * k], uv[2 * k + 1], &geo, p->n, &p->t);
         for (int i = 0; i < 3; i++)
             b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
-        tex_sample(tex, tw, th, b, p->val, grad);
+        tex_sample(tex, tw, th, b, p->val, p->grad);
         if (w->gray) {
             double y = p->val[0] * RF_LUMA_B + p->val[1] * RF_LUMA_G + p->val[2] * RF_LUMA_R;
             for (int i = 0; i < 3; i++) {
-                double gi =
-                    grad[0][i] * RF_LUMA_B + grad[1][i] * RF_LUMA_G + grad[2][i] * RF_LUMA_R;
-                grad[0][i] = grad[1][i] = grad[2][i] = gi;
+                double gi = p->grad[0][i] * RF_LUMA_B + p->grad[1][i] * RF_LUMA_G +
+                            p->grad[2][i] * RF_LUMA_R;
+                p->grad[0][i] = p->grad[1][i] = p->grad[2][i] = gi;
             }
             p->val[0] = p->val[1] = p->val[2] = y;
         }
         p->flat = 1;
         for (int c = 0; c < 3 && p->flat; c++)
-            p->flat = grad[c][0] == 0 && grad[c][1] == 0 && grad[c][2] == 0;
-        if (H && !p->flat) {
-            double dn[3][3];
-            normal_derivs(u, v, cx, cy, r, f, fixed_f > 0, p->n, tt, dn);
-            const double *n = p->n;
-            for (int c = 0; c < 3; c++) {
-                double gw[3];
-                for (int i = 0; i < 3; i++)
-                    gw[i] = R[i][0] * grad[c][0] + R[i][1] * grad[c][1] + R[i][2] * grad[c][2];
-                p->jw[c][0] = gw[1] * n[2] - gw[2] * n[1];
-                p->jw[c][1] = gw[2] * n[0] - gw[0] * n[2];
-                p->jw[c][2] = gw[0] * n[1] - gw[1] * n[0];
-                for (int q = 0; q < 3; q++)
-                    p->jt[c][q] = gw[0] * dn[q][0] + gw[1] * dn[q][1] + gw[2] * dn[q][2];
-            }
-        }
+            p->flat = p->grad[c][0] == 0 && p->grad[c][1] == 0 && p->grad[c][2] == 0;
+        /* A^T A and A^T obs of the rows a = (T, T nx, T ny, T nz, 1), written
+         * out: the products of the normal are shared by the channels */
+        double n0 = p->n[0], n1 = p->n[1], n2 = p->n[2];
+        double m[10] = {1, n0, n1, n2, n0 * n0, n0 * n1, n0 * n2, n1 * n1, n1 * n2, n2 * n2};
         for (int c = 0; c < 3; c++) {
-            double tv = p->val[c];
-            double a[5] = {tv, tv * p->n[0], tv * p->n[1], tv * p->n[2], 1.0};
-            for (int i = 0; i < 5; i++) {
-                for (int j = i; j < 5; j++) AtA[c][i][j] += a[i] * a[j];
-                Atb[c][i] += a[i] * p->obs[c];
-            }
-            sum[c] += p->obs[c];
+            double tv = p->val[c], o = p->obs[c], t2 = tv * tv, to = tv * o;
+            double *q = acc[c];
+            for (int i = 0; i < 10; i++) q[i] += t2 * m[i];
+            q[10] += tv;
+            q[11] += tv * n0;
+            q[12] += tv * n1;
+            q[13] += tv * n2;
+            q[14] += to;
+            q[15] += to * n0;
+            q[16] += to * n1;
+            q[17] += to * n2;
+            q[18] += o;
+            q[19] += o * o;
         }
     }
-    double coef[3][6], sse = 0, sst = 0;
     for (int c = 0; c < 3; c++) {
+        const double *q = acc[c];
+        double(*M)[6] = fit->AtA[c];
+        /* rows (T, T nx, T ny, T nz, 1): T^2 m[...] above the diagonal, T m[...] in the last column */
+        static const int idx[4][4] = {{0, 1, 2, 3}, {1, 4, 5, 6}, {2, 5, 7, 8}, {3, 6, 8, 9}};
+        for (int i = 0; i < 4; i++) {
+            for (int j = i; j < 4; j++) M[i][j] = q[idx[i][j]];
+            M[i][4] = q[10 + i];
+            fit->Atb[c][i] = q[14 + i];
+        }
+        M[4][4] = (double)np;
+        fit->Atb[c][4] = q[18];
+        oo[c] = q[19];
+    }
+    /* |obs - A coef|^2 = obs.obs - 2 coef.A^T obs + coef.A^T A coef (training/refine.py
+     * photometric_fit): no second pass over the pixels */
+    for (int c = 0; c < 3; c++) {
+        double(*M)[6] = fit->AtA[c];
         for (int i = 0; i < 5; i++)
-            for (int j = 0; j < i; j++) AtA[c][i][j] = AtA[c][j][i];
-        solve_spd(5, AtA[c], Atb[c], coef[c]);
+            for (int j = 0; j < i; j++) M[i][j] = M[j][i];
+        double *x = fit->coef[c];
+        solve_spd(5, M, fit->Atb[c], x);
+        double q = 0, xb = 0;
+        for (int i = 0; i < 5; i++) {
+            double mx = 0;
+            for (int j = 0; j < 5; j++) mx += M[i][j] * x[j];
+            q += x[i] * mx;
+            xb += x[i] * fit->Atb[c][i];
+        }
+        fit->sse += oo[c] - 2 * xb + q;
     }
-    double mean[3] = {sum[0] / np, sum[1] / np, sum[2] / np};
-    double JtA[3][6][5];
-    if (H) {
-        memset(H, 0, sizeof(double) * 36);
-        memset(g, 0, sizeof(double) * 6);
-        memset(JtA, 0, sizeof JtA);
-    }
+}
+
+/* The Jacobian pass at the pose and circle of the last value pass: the normal
+ * equations H d = g of a step, with the photometric coefficients projected out. */
+static void jacobian(rf_work *w, const double *uv, long np, const double R[3][3], double cx,
+                     double cy, double r, double fixed_f, const rf_fit *fit, double H[6][6],
+                     double g[6])
+{
+    double f = focal_of(r, fixed_f), JtA[3][6][5];
+    memset(H, 0, sizeof(double) * 36);
+    memset(g, 0, sizeof(double) * 6);
+    memset(JtA, 0, sizeof JtA);
     for (long k = 0; k < np; k++) {
-        rf_pix *p = &w->pix[k];
+        const rf_pix *p = &w->pix[k];
+        if (p->flat) continue;
+        const double *n = p->n;
+        double dn[3][3];
+        normal_derivs(uv[2 * k], uv[2 * k + 1], cx, cy, r, f, fixed_f > 0, n, p->t, dn);
         for (int c = 0; c < 3; c++) {
-            const double *a = coef[c];
-            double shade = a[0] + a[1] * p->n[0] + a[2] * p->n[1] + a[3] * p->n[2];
-            double model = p->val[c] * shade + a[4];
-            double e = p->obs[c] - model, d = p->obs[c] - mean[c];
-            sse += e * e;
-            sum2[c] += d * d;
-            if (H && !p->flat) {
-                double J[6], tv = p->val[c];
-                double ab[5] = {tv, tv * p->n[0], tv * p->n[1], tv * p->n[2], 1.0};
-                for (int i = 0; i < 3; i++) {
-                    J[i] = p->jw[c][i] * shade;
-                    J[3 + i] = p->jt[c][i] * shade;
-                }
-                for (int i = 0; i < 6; i++) {
-                    for (int j = i; j < 6; j++) H[i][j] += J[i] * J[j];
-                    for (int j = 0; j < 5; j++) JtA[c][i][j] += J[i] * ab[j];
-                    g[i] += J[i] * e;
-                }
+            const double *a = fit->coef[c];
+            double gw[3], J[6], tv = p->val[c];
+            for (int i = 0; i < 3; i++)
+                gw[i] = R[i][0] * p->grad[c][0] + R[i][1] * p->grad[c][1] + R[i][2] * p->grad[c][2];
+            double shade = a[0] + a[1] * n[0] + a[2] * n[1] + a[3] * n[2];
+            double e = p->obs[c] - (tv * shade + a[4]);
+            J[0] = (gw[1] * n[2] - gw[2] * n[1]) * shade;
+            J[1] = (gw[2] * n[0] - gw[0] * n[2]) * shade;
+            J[2] = (gw[0] * n[1] - gw[1] * n[0]) * shade;
+            for (int q = 0; q < 3; q++)
+                J[3 + q] = (gw[0] * dn[q][0] + gw[1] * dn[q][1] + gw[2] * dn[q][2]) * shade;
+            double ab[5] = {tv, tv * n[0], tv * n[1], tv * n[2], 1.0};
+            for (int i = 0; i < 6; i++) {
+                for (int j = i; j < 6; j++) H[i][j] += J[i] * J[j];
+                for (int j = 0; j < 5; j++) JtA[c][i][j] += J[i] * ab[j];
+                g[i] += J[i] * e;
             }
         }
     }
-    if (H) {
-        /* variable projection (training/refine.py _eval): take out of J^T J what
-         * the refitted photometric coefficients absorb, J^T A (A^T A)^-1 A^T J */
-        for (int c = 0; c < 3; c++) {
-            double X[6][5];
-            for (int i = 0; i < 6; i++) solve_spd(5, AtA[c], JtA[c][i], X[i]);
-            for (int i = 0; i < 6; i++)
-                for (int j = i; j < 6; j++) {
-                    double q = 0;
-                    for (int k = 0; k < 5; k++) q += JtA[c][i][k] * X[j][k];
-                    H[i][j] -= q;
-                }
-        }
+    /* variable projection (training/refine.py _eval): take out of J^T J what
+     * the refitted photometric coefficients absorb, J^T A (A^T A)^-1 A^T J */
+    for (int c = 0; c < 3; c++) {
+        double X[6][5], M[6][6];
+        memcpy(M, fit->AtA[c], sizeof M);
+        for (int i = 0; i < 6; i++) solve_spd(5, M, JtA[c][i], X[i]);
         for (int i = 0; i < 6; i++)
-            for (int j = 0; j < i; j++) H[i][j] = H[j][i];
+            for (int j = i; j < 6; j++) {
+                double q = 0;
+                for (int k = 0; k < 5; k++) q += JtA[c][i][k] * X[j][k];
+                H[i][j] -= q;
+            }
     }
-    sst = sum2[0] + sum2[1] + sum2[2];
-    *sse_out = sse;
-    *sst_out = sst;
+    for (int i = 0; i < 6; i++)
+        for (int j = 0; j < i; j++) H[i][j] = H[j][i];
 }
 
 int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
@@ -635,11 +704,15 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         if (np < 50) continue;
         if (!rf_iters[li]) continue;
         /* Levenberg-Marquardt (training/refine.py): a step is kept only when it
-         * lowers this level's sum of squares, else the damping grows */
-        double H[6][6], g[6], sse, sst, lam = RF_DAMPING;
-        evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &sse, &sst, H, g);
+         * lowers this level's sum of squares, else the damping grows. A step's
+         * candidate gets its value pass only; the Jacobian pass follows when it
+         * is kept and another step comes. */
+        double H[6][6], g[6], lam = RF_DAMPING;
+        rf_fit fit, fc;
+        evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &fit);
+        jacobian(w, uv, np, R, cx * s, cy * s, r * s, ff, &fit, H, g);
         for (int it = 0; it < rf_iters[li]; it++) {
-            double Hd[6][6], d[6], M[3][3], Rc[3][3], Hc[6][6], gc[6], sse_c, sst_c;
+            double Hd[6][6], d[6], M[3][3], Rc[3][3];
             memcpy(Hd, H, sizeof Hd);
             for (int i = 0; i < 6; i++) Hd[i][i] *= 1.0 + lam;
             solve_spd(6, Hd, g, d);
@@ -652,26 +725,25 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
                 for (int j = 0; j < 3; j++)
                     Rc[i][j] = M[i][0] * R[0][j] + M[i][1] * R[1][j] + M[i][2] * R[2][j];
             double cxc = cx + d[3] / s, cyc = cy + d[4] / s, rc_ = r + d[5] / s;
-            evaluate(t, lev, w, uv, np, Rc, cxc * s, cyc * s, rc_ * s, ff, &sse_c, &sst_c, Hc, gc);
-            if (sse_c <= sse) {
+            evaluate(t, lev, w, uv, np, Rc, cxc * s, cyc * s, rc_ * s, ff, &fc);
+            if (fc.sse <= fit.sse) {
                 memcpy(R, Rc, sizeof R);
                 cx = cxc;
                 cy = cyc;
                 r = rc_;
-                sse = sse_c;
-                sst = sst_c;
-                memcpy(H, Hc, sizeof H);
-                memcpy(g, gc, sizeof g);
+                fit = fc;
                 lam = lam * 0.1 > RF_DAMPING ? lam * 0.1 : RF_DAMPING;
                 total++;
+                if (it + 1 < rf_iters[li])
+                    jacobian(w, uv, np, R, cx * s, cy * s, r * s, ff, &fit, H, g);
             } else {
                 lam *= 10.0;
             }
         }
         if (lev == 0) {
             have_final = 1;
-            final_sse = sse;
-            final_sst = sst;
+            final_sse = fit.sse;
+            final_sst = w->sst;
         }
     }
     /* the residual: the finest level's pixels (chosen where that level began),
@@ -686,7 +758,10 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
             pi_seterrn(err, errlen, "refine: circle too small or outside the frame");
             return -1;
         }
-        evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &final_sse, &final_sst, NULL, NULL);
+        rf_fit fit;
+        evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &fit);
+        final_sse = fit.sse;
+        final_sst = w->sst;
     }
     out->residual = final_sst > 0 ? final_sse / final_sst : 1.0;
     memcpy(out->R, R, sizeof R);

@@ -12,19 +12,16 @@
 
 /* The parameters of training/refine.py (tests/host/unit/test_refine.c reads
  * them back from the Python file). */
-#define RF_LEVELS 3
+#define RF_LEVELS        3
+/* one line each: tests/training/test_refine.py reads them */
+// clang-format off
 #ifndef RF_ITERS_INIT
-#define RF_ITERS_INIT \
-    {                 \
-        4, 2, 1       \
-    } /* Levenberg-Marquardt steps per level, coarse to fine */
+#define RF_ITERS_INIT {4, 2, 1} /* Levenberg-Marquardt steps per level, coarse to fine */
 #endif
 #ifndef RF_STRIDES_INIT
-#define RF_STRIDES_INIT \
-    {                   \
-        2, 3, 5         \
-    } /* pixel sampling stride per level, coarse to fine */
+#define RF_STRIDES_INIT {2, 3, 5} /* pixel sampling stride per level, coarse to fine */
 #endif
+// clang-format on
 #define RF_RHO_MAX       0.92
 #define RF_CROP_PAD      4.0 /* the crop: the circle's square grown by this (px) */
 #define RF_TEXTURE_WIDTH 1024
