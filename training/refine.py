@@ -13,8 +13,11 @@ photometric model absorbs what light does to colour: per channel c,
 Levenberg-Marquardt steps over the rotation, the circle's centre and its radius then minimise
 the squared difference, coarse to fine on a pyramid of the frame and the texture. The residual is
 the fraction of the frame's variance inside the circle that the aligned texture does not explain
-(0: perfect, 1: no relation); with the pose checked against the model's ranges it decides
-whether the answer is confident. docs/refine.md gives the algorithm and the numbers.
+(0: perfect, 1: no relation). A colour frame also gets its colour ratio: the share of the frame's
+variance off its main colour axis, over the same share of the fitted rendering (about 1 when the
+sphere shows the texture's colours, near 0 for a gray sphere of the same pattern). With the pose
+checked against the model's ranges they decide whether the answer is confident. docs/refine.md
+gives the algorithm and the numbers.
 """
 import base64
 import json
@@ -38,7 +41,7 @@ REF_D_OVER_R = 12.5   # the reference camera's distance / sphere radius (250 mm 
 LUMA = (0.114, 0.587, 0.299)  # B, G, R weights of a gray frame's texture (ITU-R BT.601, as OpenCV)
 FD_STEP = 1e-3        # finite-difference step (pixels) of the tests' check of d n / d (cx, cy, r)
 
-DEFAULT_CONFIDENCE = {"residual_max": 0.25, "range_margin_deg": 2.0}
+DEFAULT_CONFIDENCE = {"residual_max": 0.25, "range_margin_deg": 2.0, "colour_min": 0.0}
 
 
 # ---- texture --------------------------------------------------------------------------------
@@ -305,6 +308,22 @@ def photometric_fit(obs, val, n):
     return model, shade, sse, sst
 
 
+def colour_share(X):
+    """The share of the variance of colours X [N, 3] off their main axis: 1 - the largest
+    eigenvalue of their covariance over its trace (0 for a gray image, whatever the gains)."""
+    X = np.asarray(X, np.float64)
+    d = X - X.mean(axis=0)
+    C = d.T @ d
+    tr = float(np.trace(C))
+    return 1.0 - float(np.linalg.eigvalsh(C)[-1]) / tr if tr > 0 else 0.0
+
+
+def colour_ratio(obs, model):
+    """The frame's colour share over the fitted rendering's (None when the rendering has none)."""
+    m = colour_share(model)
+    return colour_share(obs) / m if m > 0 else None
+
+
 def _solve_spd(A, b):
     """A x = b for a symmetric positive semi-definite A (a tiny ridge keeps it solvable)."""
     k = A.shape[0]
@@ -317,19 +336,20 @@ def _solve_spd(A, b):
 class Result:
     """Refined pose and circle, and the alignment residual."""
 
-    def __init__(self, R, circle, residual, iterations):
+    def __init__(self, R, circle, residual, iterations, colour=None):
         self.R = R
         self.euler = matrix_to_euler(R)
         self.circle = circle
         self.residual = residual       # after refinement (at the given pose when no steps)
         self.iterations = iterations
+        self.colour = colour           # colour ratio (colour_ratio); None for a gray frame
 
     def __repr__(self):
         return (f"Result(euler={tuple(round(a, 4) for a in self.euler)}, circle={self.circle}, "
                 f"residual={self.residual:.4f})")
 
 
-def _eval(tex, img, us, vs, obs, R, cx, cy, r, fixed_f, want_jac, gray=False):
+def _eval(tex, img, us, vs, obs, R, cx, cy, r, fixed_f, want_jac, gray=False, want_model=False):
     if want_jac:
         n, dn = normals_and_derivs(us, vs, cx, cy, r, fixed_f)
     else:
@@ -342,6 +362,8 @@ def _eval(tex, img, us, vs, obs, R, cx, cy, r, fixed_f, want_jac, gray=False):
         g = grad[:, 0, :] * w[0] + grad[:, 1, :] * w[1] + grad[:, 2, :] * w[2]
         grad = np.repeat(g[:, None, :], 3, axis=1)
     model, shade, sse, sst = photometric_fit(obs, val, n)
+    if want_model:
+        return model
     if not want_jac:
         return sse, sst, None, None
     gw = grad @ R.T                 # world-frame gradients [N, 3, 3]: R g_b
@@ -381,7 +403,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
     # work in the crop's coordinates at the finest level
     cx, cy = cx - x0, cy - y0
     total = 0
-    final = None
+    final = fine = None
     for lev in range(LEVELS - 1, -1, -1):
         s = 1.0 / (1 << lev)
         img, tex = fpyr[lev], texture_pyr[lev]
@@ -389,6 +411,8 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
         us, vs, obs = pixel_set(img, cx * s, cy * s, r * s, strides[LEVELS - 1 - lev])
         if len(us) < 50:
             continue
+        if lev == 0:
+            fine = (us, vs, obs)
         steps = iters[LEVELS - 1 - lev]
         if not steps:
             continue
@@ -419,13 +443,18 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
             final = (sse, sst)
     # the residual: the finest level's pixels (chosen where that level began), at the final pose
     if final is None:
-        us, vs, obs = pixel_set(fpyr[0], cx, cy, r, strides[-1])
-        if len(us) < 50:
+        fine = pixel_set(fpyr[0], cx, cy, r, strides[-1])
+        if len(fine[0]) < 50:
             raise ValueError("refine: circle too small or outside the frame")
-        final = _eval(texture_pyr[0], fpyr[0], us, vs, obs, R, cx, cy, r, camera_focal_px, False, gray)[:2]
+        final = _eval(texture_pyr[0], fpyr[0], *fine, R, cx, cy, r, camera_focal_px, False, gray)[:2]
     sse, sst = final
     res = sse / sst if sst > 0 else 1.0
-    return Result(R, (cx + x0, cy + y0, r), res, total)
+    # the colour ratio on the same pixels at the final pose (a gray frame has no colours to compare)
+    colour = None
+    if not gray:
+        model = _eval(texture_pyr[0], fpyr[0], *fine, R, cx, cy, r, camera_focal_px, False, gray, True)
+        colour = colour_ratio(fine[2], model)
+    return Result(R, (cx + x0, cy + y0, r), res, total, colour)
 
 
 # ---- confidence -------------------------------------------------------------------------------
@@ -438,12 +467,17 @@ def confidence_params(meta_value=None):
     return p
 
 
-def judge(residual, euler, ranges, params):
-    """(confident, note): the residual against its threshold, then the pose against the
-    model's ranges (widened by range_margin_deg)."""
+def judge(residual, euler, ranges, params, colour=None):
+    """(confident, note): the residual against its threshold, the colour ratio against its
+    least (colour frames only), then the pose against the model's ranges (widened by
+    range_margin_deg)."""
     if not residual <= params["residual_max"]:
         return False, (f"poor alignment (residual {residual:.3f} > {params['residual_max']:.3f}): "
                        f"another texture, a pose outside the model's ranges, or a wrong sphere")
+    cmin = params.get("colour_min", 0.0)
+    if colour is not None and cmin > 0 and not colour >= cmin:
+        return False, (f"colours do not match (colour ratio {colour:.2f} < {cmin:.2f}): "
+                       f"another texture, or the model's texture without its colours")
     m = params["range_margin_deg"]
     for a, name in zip(euler, "xyz"):
         lo, hi = ranges[name]
@@ -477,9 +511,9 @@ class Refiner:
         res = refine(frame, circle, R0, self.texture, self.focal, iters=iters)
         key = "residual_max" if refine_pose else "residual_max_unrefined"
         conf = dict(self.conf, residual_max=self.conf.get(key, self.conf["residual_max"]))
-        ok, note = judge(res.residual, res.euler, self.ranges, conf)
+        ok, note = judge(res.residual, res.euler, self.ranges, conf, res.colour)
         out = {"x": res.euler[0], "y": res.euler[1], "z": res.euler[2], "confident": ok,
-               "residual": res.residual}
+               "residual": res.residual, "colour": res.colour}
         if note:
             out["note"] = note
         if refine_pose:
@@ -511,14 +545,19 @@ def _frames(paths):
             yield p
 
 
-def calibrate(residuals_refined, residuals_unrefined, factor=3.0, floor=0.02):
+def calibrate(residuals_refined, residuals_unrefined, factor=3.0, floor=0.02, colours=()):
     """Thresholds from in-range held-out frames: `factor` times their 99th percentile
-    (at least `floor`)."""
-    q = lambda a: float(np.quantile(np.asarray(a, np.float64), 0.99))
-    return {"residual_max": round(max(floor, factor * q(residuals_refined)), 4),
-            "residual_max_unrefined": round(max(floor, factor * q(residuals_unrefined)), 4),
-            "range_margin_deg": DEFAULT_CONFIDENCE["range_margin_deg"],
-            "calibrated_on": len(residuals_refined)}
+    (at least `floor`); the colour ratio's least: their 1st percentile over `factor` (colour
+    frames only; none: no colour check)."""
+    q = lambda a, p=0.99: float(np.quantile(np.asarray(a, np.float64), p))
+    out = {"residual_max": round(max(floor, factor * q(residuals_refined)), 4),
+           "residual_max_unrefined": round(max(floor, factor * q(residuals_unrefined)), 4),
+           "range_margin_deg": DEFAULT_CONFIDENCE["range_margin_deg"],
+           "calibrated_on": len(residuals_refined)}
+    colours = [c for c in colours if c is not None]
+    if colours:
+        out["colour_min"] = round(q(colours, 0.01) / factor, 4)
+    return out
 
 
 def main(argv=None):
@@ -542,7 +581,8 @@ def main(argv=None):
                        f"(metadata {META_CONFIDENCE})")
     c.add_argument("--model", required=True)
     c.add_argument("--camera-file", default=None, help="as for run")
-    c.add_argument("--factor", type=float, default=3.0, help="threshold = factor x 99th percentile")
+    c.add_argument("--factor", type=float, default=3.0, help="residual threshold = factor x 99th percentile; "
+                   "least colour ratio = 1st percentile / factor")
     c.add_argument("--write", action="store_true", help="store the thresholds in the model file")
     c.add_argument("frames", nargs="+", help="in-range frames the model was not trained on")
     args = ap.parse_args(argv)
@@ -582,12 +622,13 @@ def main(argv=None):
                 out = {"file": str(path), **ref(frame, circle, euler, not args.no_refine)}
                 print(json.dumps(out), flush=True)
             else:
-                rows.append((ref(frame, circle, euler, True)["residual"],
-                             ref(frame, circle, euler, False)["residual"]))
+                a = ref(frame, circle, euler, True)
+                rows.append((a["residual"], ref(frame, circle, euler, False)["residual"], a["colour"]))
         if args.cmd == "calibrate":
             if len(rows) < 20:
                 raise ValueError(f"calibrate: {len(rows)} frames; give at least 20")
-            conf = calibrate([a for a, _ in rows], [b for _, b in rows], args.factor)
+            conf = calibrate([a for a, _, _ in rows], [b for _, b, _ in rows], args.factor,
+                             colours=[c for _, _, c in rows])
             print(json.dumps(conf))
             if args.write:
                 set_metadata(args.model, {META_CONFIDENCE: json.dumps(conf, sort_keys=True)})

@@ -807,7 +807,7 @@ static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
         res->rr = o.r;
         if (res->has_rotmat) memcpy(res->rotmat, o.R, sizeof o.R);
     }
-    res->confident = rf_judge(&ctx->rf_conf, o.residual, ctx->rf_on ? o.euler : res->net,
+    res->confident = rf_judge(&ctx->rf_conf, o.residual, o.colour, ctx->rf_on ? o.euler : res->net,
                               ctx->rf_on, res->note, sizeof res->note);
     res->refine_ms = pi_now_ms() - t0;
 }

@@ -668,13 +668,78 @@ static void jacobian(rf_work *w, const double *uv, long np, const double R[3][3]
         for (int j = 0; j < i; j++) H[i][j] = H[j][i];
 }
 
+/* 1 - the largest eigenvalue of a symmetric 3x3 matrix over its trace
+ * (training/refine.py colour_share): the trigonometric solution of its
+ * characteristic cubic. */
+static double off_axis_share(const double C[3][3])
+{
+    double tr = C[0][0] + C[1][1] + C[2][2];
+    if (!(tr > 0)) return 0;
+    double q = tr / 3, p1 = C[0][1] * C[0][1] + C[0][2] * C[0][2] + C[1][2] * C[1][2];
+    double p2 = (C[0][0] - q) * (C[0][0] - q) + (C[1][1] - q) * (C[1][1] - q) +
+                (C[2][2] - q) * (C[2][2] - q) + 2 * p1;
+    double p = sqrt(p2 / 6), top = q;
+    if (p > 0) {
+        double B[3][3];
+        for (int i = 0; i < 3; i++)
+            for (int j = 0; j < 3; j++) B[i][j] = (C[i][j] - (i == j ? q : 0)) / p;
+        double det = B[0][0] * (B[1][1] * B[2][2] - B[1][2] * B[2][1]) -
+                     B[0][1] * (B[1][0] * B[2][2] - B[1][2] * B[2][0]) +
+                     B[0][2] * (B[1][0] * B[2][1] - B[1][1] * B[2][0]);
+        double h = det / 2;
+        h = h < -1 ? -1 : h > 1 ? 1 : h;
+        top = q + 2 * p * cos(acos(h) / 3);
+    }
+    return 1 - top / tr;
+}
+
+/* The frame's colour share over the fitted rendering's, on the pixels of the
+ * last value pass (NaN when the rendering has no colour). */
+static double colour_ratio(const rf_work *w, long np, const rf_fit *fit)
+{
+    double so[3] = {0, 0, 0}, sm[3] = {0, 0, 0}, Co[3][3], Cm[3][3];
+    memset(Co, 0, sizeof Co);
+    memset(Cm, 0, sizeof Cm);
+    for (int pass = 0; pass < 2; pass++)
+        for (long k = 0; k < np; k++) {
+            const rf_pix *p = &w->pix[k];
+            double o[3], m[3];
+            for (int c = 0; c < 3; c++) {
+                const double *a = fit->coef[c];
+                double shade = a[0] + a[1] * p->n[0] + a[2] * p->n[1] + a[3] * p->n[2];
+                m[c] = p->val[c] * shade + a[4];
+                o[c] = p->obs[c];
+            }
+            if (pass == 0) {
+                for (int c = 0; c < 3; c++) {
+                    so[c] += o[c];
+                    sm[c] += m[c];
+                }
+                continue;
+            }
+            for (int c = 0; c < 3; c++) {
+                o[c] -= so[c] / np;
+                m[c] -= sm[c] / np;
+            }
+            for (int i = 0; i < 3; i++)
+                for (int j = 0; j < 3; j++) {
+                    Co[i][j] += o[i] * o[j];
+                    Cm[i][j] += m[i] * m[j];
+                }
+        }
+    double sm_share = off_axis_share(Cm);
+    return sm_share > 0 ? off_axis_share(Co) / sm_share : NAN;
+}
+
 int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
               double r, const double R0[3][3], double focal_px, int steps, rf_out *out, char *err,
               size_t errlen)
 {
     double R[3][3];
-    int x0, y0, total = 0, have_final = 0;
+    int x0, y0, total = 0, have_final = 0, at_final = 0;
     double *uv, final_sse = 0, final_sst = 0;
+    long np0 = 0;
+    rf_fit fit0; /* the finest level's fit at the final pose, when at_final */
     memcpy(R, R0, sizeof R);
     if (!t || !w || !frame || !frame->data || !(r > 2) || !isfinite(cx) || !isfinite(cy) ||
         !isfinite(r)) {
@@ -710,6 +775,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         double H[6][6], g[6], lam = RF_DAMPING;
         rf_fit fit, fc;
         evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &fit);
+        at_final = 1;
         jacobian(w, uv, np, R, cx * s, cy * s, r * s, ff, &fit, H, g);
         for (int it = 0; it < rf_iters[li]; it++) {
             double Hd[6][6], d[6], M[3][3], Rc[3][3];
@@ -726,6 +792,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
                     Rc[i][j] = M[i][0] * R[0][j] + M[i][1] * R[1][j] + M[i][2] * R[2][j];
             double cxc = cx + d[3] / s, cyc = cy + d[4] / s, rc_ = r + d[5] / s;
             evaluate(t, lev, w, uv, np, Rc, cxc * s, cyc * s, rc_ * s, ff, &fc);
+            at_final = fc.sse <= fit.sse; /* w->pix holds the candidate's rendering */
             if (fc.sse <= fit.sse) {
                 memcpy(R, Rc, sizeof R);
                 cx = cxc;
@@ -744,6 +811,8 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
             have_final = 1;
             final_sse = fit.sse;
             final_sst = w->sst;
+            np0 = np;
+            fit0 = fit;
         }
     }
     /* the residual: the finest level's pixels (chosen where that level began),
@@ -758,12 +827,20 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
             pi_seterrn(err, errlen, "refine: circle too small or outside the frame");
             return -1;
         }
-        rf_fit fit;
-        evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &fit);
-        final_sse = fit.sse;
+        evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &fit0);
+        final_sse = fit0.sse;
         final_sst = w->sst;
+        np0 = np;
+        at_final = 1;
     }
     out->residual = final_sst > 0 ? final_sse / final_sst : 1.0;
+    /* the colour ratio on the same pixels at the final pose (training/refine.py):
+     * the last step's candidate, when it was not kept, is rendered over */
+    out->colour = NAN;
+    if (!w->gray) {
+        if (!at_final) evaluate(t, 0, w, uv, np0, R, cx, cy, r, focal_px, &fit0);
+        out->colour = colour_ratio(w, np0, &fit0);
+    }
     memcpy(out->R, R, sizeof R);
     rf_matrix_to_euler(R, out->euler);
     out->cx = cx + x0;
@@ -780,6 +857,7 @@ void rf_conf_defaults(rf_conf *c)
     c->residual_max = 0.25;
     c->residual_max_unrefined = 0.25;
     c->range_margin_deg = 2.0;
+    c->colour_min = 0; /* no colour check */
     for (int i = 0; i < 3; i++) {
         c->ranges[i][0] = -30;
         c->ranges[i][1] = 30;
@@ -821,7 +899,8 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
                   conf_number(&root, "residual_max_unrefined", 0, 1, &c->residual_max_unrefined,
                               err, errlen) < 0 ||
                   conf_number(&root, "range_margin_deg", 0, 180, &c->range_margin_deg, err,
-                              errlen) < 0;
+                              errlen) < 0 ||
+                  conf_number(&root, "colour_min", 0, 10, &c->colour_min, err, errlen) < 0;
             if (!has_unrefined) c->residual_max_unrefined = c->residual_max;
         }
         json_free(&root);
@@ -850,8 +929,8 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
     return 0;
 }
 
-int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note,
-             size_t notelen)
+int rf_judge(const rf_conf *c, double residual, double colour, const double euler[3], int refined,
+             char *note, size_t notelen)
 {
     double max = refined ? c->residual_max : c->residual_max_unrefined, m = c->range_margin_deg;
     if (!(residual <= max)) {
@@ -859,6 +938,13 @@ int rf_judge(const rf_conf *c, double residual, const double euler[3], int refin
                  "poor alignment (residual %.3f > %.3f): another texture, a pose outside the "
                  "model's ranges, or a wrong sphere",
                  residual, max);
+        return 0;
+    }
+    if (!isnan(colour) && c->colour_min > 0 && !(colour >= c->colour_min)) {
+        snprintf(note, notelen,
+                 "colours do not match (colour ratio %.2f < %.2f): another texture, or the "
+                 "model's texture without its colours",
+                 colour, c->colour_min);
         return 0;
     }
     for (int i = 0; i < 3; i++) {

@@ -49,6 +49,7 @@ typedef struct rf_out {
     double euler[3];  /* the same as (x, y, z) degrees */
     double cx, cy, r; /* refined circle, continuous pixel coordinates */
     double residual;  /* unexplained fraction of the frame's variance, [0, 1] */
+    double colour;    /* the frame's colour share over the fitted rendering's (NaN: a gray frame) */
     int iterations;   /* Levenberg-Marquardt steps kept */
 } rf_out;
 
@@ -78,7 +79,8 @@ typedef struct rf_conf {
     double residual_max;           /* refined residual above this: not confident */
     double residual_max_unrefined; /* the same for the residual at the network's pose */
     double range_margin_deg;       /* a pose this far beyond the ranges: not confident */
-    double ranges[3][2];           /* x, y, z: [lo, hi] degrees */
+    double colour_min;   /* a colour frame's colour ratio below this: not confident (0: off) */
+    double ranges[3][2]; /* x, y, z: [lo, hi] degrees */
 } rf_conf;
 
 void rf_conf_defaults(rf_conf *c);
@@ -87,9 +89,10 @@ void rf_conf_defaults(rf_conf *c);
 int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err,
                   size_t errlen);
 
-/* 1 when confident, else 0 with the reason in note (training/refine.py judge). */
-int rf_judge(const rf_conf *c, double residual, const double euler[3], int refined, char *note,
-             size_t notelen);
+/* 1 when confident, else 0 with the reason in note (training/refine.py judge);
+ * colour: rf_out.colour (NaN: no colour check). */
+int rf_judge(const rf_conf *c, double residual, double colour, const double euler[3], int refined,
+             char *note, size_t notelen);
 
 /* Conventions' conversions (docs/conventions.md). */
 void rf_euler_to_matrix(const double euler_deg[3], double R[3][3]);

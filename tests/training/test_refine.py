@@ -165,6 +165,25 @@ def test_residual_tells_the_right_texture_from_another(texture, pyramid):
     assert other.residual > 0.3
 
 
+def test_colour_ratio_tells_the_texture_from_its_gray_version(texture, pyramid):
+    """The same pattern without its colours (a gray sphere in a colour frame, under a tinted
+    light) leaves the colour ratio near 0; the texture itself, near 1. A gray frame has none."""
+    euler = (6.0, -9.0, 14.0)
+    R = rf.euler_to_matrix(euler)
+    good = rf.refine(synth_frame(texture, euler), (320, 256, R_REF), R, pyramid)
+    gray = synth_frame(np.repeat(cv2.cvtColor(texture, cv2.COLOR_BGR2GRAY)[:, :, None], 3, axis=2), euler,
+                       bg=(64, 64, 64))
+    tinted = np.clip(gray * np.array([0.8, 1.0, 1.15]), 0, 255).astype(np.uint8)
+    bad = rf.refine(tinted, (320, 256, R_REF), R, pyramid)
+    assert 0.8 < good.colour < 1.25 and bad.colour < 0.1, (good.colour, bad.colour)
+    assert rf.refine(gray, (320, 256, R_REF), R, pyramid).colour is None
+    p = rf.confidence_params('{"residual_max": 0.5, "colour_min": 0.4}')
+    ranges = {"x": [-30, 30], "y": [-30, 30], "z": [-30, 30]}
+    assert rf.judge(bad.residual, euler, ranges, p, bad.colour)[1].startswith("colours do not match")
+    assert rf.judge(good.residual, euler, ranges, p, good.colour) == (True, None)
+    assert rf.judge(good.residual, euler, ranges, p, None) == (True, None)
+
+
 def test_gray_frame_sees_the_texture_as_luma(texture, pyramid):
     """A mono camera: the colour texture is compared as its luma, one channel or three equal."""
     euler = (-8.0, 14.0, 22.0)
@@ -203,6 +222,8 @@ def test_calibrate_takes_a_multiple_of_the_99th_percentile():
     c = rf.calibrate(np.linspace(0, 0.01, 101), np.linspace(0, 0.1, 101))
     assert c["residual_max"] == pytest.approx(0.0297) and c["residual_max_unrefined"] == pytest.approx(0.297)
     assert rf.calibrate([0.0] * 30, [0.0] * 30)["residual_max"] == 0.02
+    assert "colour_min" not in rf.calibrate([0.0] * 30, [0.0] * 30, colours=[None] * 30)
+    assert rf.calibrate([0.0] * 30, [0.0] * 30, 2.0, colours=np.linspace(0.8, 1.2, 101))["colour_min"] == 0.402
 
 
 def test_c_parameters_match(tmp_path):

@@ -241,17 +241,24 @@ static void confidence_rules(void **state)
     assert_true(c.residual_max == 0.05 && c.residual_max_unrefined == 0.05 &&
                 c.range_margin_deg == 2.0);
     double in[3] = {10, -29, 41.9}, out[3] = {0, 45.04, 0}, zero[3] = {0, 0, 0};
-    assert_int_equal(rf_judge(&c, 0.01, in, 1, note, sizeof note), 1);
+    assert_int_equal(rf_judge(&c, 0.01, NAN, in, 1, note, sizeof note), 1);
     assert_string_equal(note, "");
-    assert_int_equal(rf_judge(&c, 0.06, zero, 1, note, sizeof note), 0);
+    assert_int_equal(rf_judge(&c, 0.06, NAN, zero, 1, note, sizeof note), 0);
     assert_non_null(strstr(note, "poor alignment (residual 0.060 > 0.050)"));
-    assert_int_equal(rf_judge(&c, 0.01, out, 1, note, sizeof note), 0);
+    assert_int_equal(rf_judge(&c, 0.01, NAN, out, 1, note, sizeof note), 0);
     assert_string_equal(note, "outside the model's ranges (y = 45.0 not in [-30, 30])");
-    assert_int_equal(rf_judge(&c, NAN, zero, 1, note, sizeof note), 0);
+    assert_int_equal(rf_judge(&c, NAN, NAN, zero, 1, note, sizeof note), 0);
     assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05, \"residual_max_unrefined\": 0.3}",
                                    NULL, err, sizeof err),
                      0);
-    assert_int_equal(rf_judge(&c, 0.2, zero, 0, note, sizeof note), 1);
+    assert_int_equal(rf_judge(&c, 0.2, NAN, zero, 0, note, sizeof note), 1);
+    /* the colour ratio: colour frames only (NaN: a gray frame, no check) */
+    assert_true(c.colour_min == 0);
+    assert_int_equal(rf_conf_parse(&c, "{\"colour_min\": 0.4}", NULL, err, sizeof err), 0);
+    assert_int_equal(rf_judge(&c, 0.01, 0.9, zero, 1, note, sizeof note), 1);
+    assert_int_equal(rf_judge(&c, 0.01, NAN, zero, 1, note, sizeof note), 1);
+    assert_int_equal(rf_judge(&c, 0.01, 0.12, zero, 1, note, sizeof note), 0);
+    assert_non_null(strstr(note, "colours do not match (colour ratio 0.12 < 0.40)"));
     assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 2}", NULL, err, sizeof err), -1);
     assert_non_null(strstr(err, "residual_max"));
     assert_int_equal(rf_conf_parse(&c, "[1]", NULL, err, sizeof err), -1);
