@@ -125,7 +125,7 @@ def python_side(model, frames, rounds, threads):
     so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     sess = ort.InferenceSession(str(model), so, providers=["CPUExecutionProvider"])
     meta = sess.get_modelmeta().custom_metadata_map
-    p = preprocess.params(meta.get("spherepose.preprocess"))
+    p = preprocess.params(meta.get("spherepose.preprocess"), model=str(model))
     x = np.zeros((1, 3, p["size"], p["size"]), np.float32)
     sess.run(["euler_deg"], {"image": x})  # warm-up, as the C side
     res = {k: [] for k in ("decode", "preprocess", "infer", "total")}

@@ -92,7 +92,10 @@ def evaluate_cmd(args):
         meta = read_metadata(args.model)
         if "spherepose.preprocess" not in meta:
             raise SystemExit(f"posetrain: {args.model}: missing metadata key spherepose.preprocess")
-        params = pp.params(meta["spherepose.preprocess"])
+        try:
+            params = pp.params(meta["spherepose.preprocess"], model=args.model)
+        except ValueError as e:
+            raise SystemExit(f"posetrain: {e}") from None
         label = args.label or meta.get("spherepose.texture", Path(args.model).stem)
         from .data import prepare_batch
         results = {}

@@ -67,9 +67,11 @@ DEFAULTS_V2 = {
     # 1 px); first pass: the centre shift within +-w, w = consensus_cells * s
     # + consensus_px (grid of consensus_step_px), and radius that most rays
     # agree on, from candidates within +-consensus_reach * w of the radius;
-    # every pass: irls_iters rounds of "nearest candidate per ray, Tukey
-    # weights (tukey_c times the robust scale, at least sigma_min_px),
-    # algebraic circle fit"; passes after the first cast the rays again from
+    # in the first pass only edges of at least consensus_edge_ratio times their
+    # ray's median step count (a busy texture or backdrop has steps all along
+    # a ray; the rim stands out of them); every pass: irls_iters rounds of
+    # "nearest candidate per ray, Tukey weights (tukey_c times the robust
+    # scale, at least sigma_min_px), algebraic circle fit"; passes after the first cast the rays again from
     # the new centre, within +-(fine_window_px + fine_window_frac * r)
     "rays": 128,
     "ray_edge_min": 12,
@@ -77,6 +79,7 @@ DEFAULTS_V2 = {
     "consensus_px": 4,
     "consensus_step_px": 2,
     "consensus_reach": 1.5,
+    "consensus_edge_ratio": 2.0,
     "fine_passes": 3,
     "fine_window_px": 3,
     "fine_window_frac": 0.02,
@@ -84,12 +87,19 @@ DEFAULTS_V2 = {
     "tukey_c": 4.0,
     "sigma_min_px": 0.3,
     # support of a circle: the fraction of all rays with an edge within
-    # inlier_px of it. The sphere is the best supported circle with at least
-    # min_support; another one of about its size (radii within 1 + 2 r_tol)
-    # away from it is a second sphere (error); more than max_cut of its rim
-    # outside the frame is an error too
+    # inlier_px of it that stands out of the ray's own steps nearby: a local
+    # maximum of the colour step of at least support_edge_min and at least
+    # support_ratio times the median step on the ray from 2 inlier_px to
+    # support_flank_px off the circle (sensor noise and texture are edges
+    # everywhere along a ray, a rim only at the circle). The sphere is the best
+    # supported circle with at least min_support; another one of about its
+    # size (radii within 1 + 2 r_tol) away from it is a second sphere (error);
+    # more than max_cut of its rim outside the frame is an error too
     "inlier_px": 1.0,
-    "min_support": 0.5,
+    "support_edge_min": 8,
+    "support_ratio": 2.5,
+    "support_flank_px": 8,
+    "min_support": 0.42,
     "max_cut": 0.15,
     # crop: everything farther than r (1 + mask_frac) from the centre is `fill` (BGR)
     "mask_frac": 0.02,
@@ -103,9 +113,16 @@ class NoSphere(ValueError):
     """The frame holds nothing that looks like the sphere (or not one sphere, whole)."""
 
 
-def params(overrides=None):
+def params(overrides=None, model=None):
     """Preprocessing parameters: the defaults of the named algorithm (v2 unless overrides name
-    another) updated by `overrides` (dict or JSON text). A v2 set must hold every v2 key."""
+    another) updated by `overrides` (dict or JSON text). A v2 set must hold every v2 key.
+
+    With `model` (the model's name, for messages), `overrides` is that model's
+    `spherepose.preprocess` metadata and fills nothing: it must name its algorithm and hold
+    every key of it and no other, else ValueError naming the key (as the C runtime refuses such
+    a model); this project's exports always write every key."""
+    if model is not None:
+        return _model_params(overrides, model)
     o = (json.loads(overrides) if isinstance(overrides, str) else dict(overrides)) if overrides else {}
     name = o.get("name", NAME)
     if name == NAME_V1:
@@ -116,6 +133,31 @@ def params(overrides=None):
         raise ValueError(f"unknown preprocessing {name!r}; this code implements {NAME_V1!r} and {NAME_V2!r}")
     p.update(o)
     return p
+
+
+def _model_params(meta, model):
+    where = f"{model}: metadata spherepose.preprocess"
+    if meta is None:
+        raise ValueError(f"{model}: missing metadata key spherepose.preprocess")
+    try:
+        o = json.loads(meta) if isinstance(meta, str) else dict(meta)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"{where}: not a JSON object ({e})") from None
+    if not isinstance(o, dict):
+        raise ValueError(f"{where}: not a JSON object")
+    if "name" not in o:
+        raise ValueError(f'{where}: needs key "name" (the model\'s export wrote no value for it)')
+    defaults = {NAME_V1: DEFAULTS_V1, NAME_V2: DEFAULTS_V2}.get(o["name"])
+    if defaults is None:
+        raise ValueError(f"{where}: unknown preprocessing {o['name']!r}; this code implements "
+                         f"{NAME_V1!r} and {NAME_V2!r}")
+    for k in o:
+        if k not in defaults:
+            raise ValueError(f'{where}: unknown {o["name"]} key "{k}"')
+    for k in defaults:
+        if k not in o:
+            raise ValueError(f'{where}: {o["name"]} needs key "{k}" (the model\'s export wrote no value for it)')
+    return o
 
 
 def _as_bgr(frame):
@@ -461,11 +503,11 @@ def _sample(img, X, Y):
     return v
 
 
-def _ray_edges(img, dirs, cx, cy, r, win, p):
-    """Edge candidates along each ray from (cx, cy): the local maxima, of at least ray_edge_min,
-    of the colour step (max over channels of |difference of the samples 1 px apart|, samples
-    every half pixel) within [r - win, r + win], sub-pixel (parabola). Returns a list per ray of
-    distances from (cx, cy); None for a ray that leaves the frame."""
+def _ray_scores(img, dirs, cx, cy, r, win):
+    """The colour step along each ray from (cx, cy) (max over channels of |difference of the
+    samples 1 px apart|, samples every half pixel) within [r - win, r + win]: (rho [n + 2] of the
+    samples, score [K, n] centred on samples 0..n-1 (rho[1:-1]), bad [K]: the ray leaves the
+    frame)."""
     m = int(math.floor(win * 2.0))
     n = 2 * m + 1
     j = np.arange(-1, n + 1, dtype=np.float64)  # one extra sample each side for the differences
@@ -477,11 +519,31 @@ def _ray_edges(img, dirs, cx, cy, r, win, p):
     score = np.maximum(np.maximum(d[:, :, 0], d[:, :, 1]), d[:, :, 2])
     bad = np.isnan(score).any(axis=1)
     score = np.where(np.isnan(score), 0.0, score)
+    return rho, score, bad
+
+
+def _peaks(rho, score, thr):
+    """Local maxima (at least thr) of the scores, at samples 1..n-2: (mask [K, n-2], sub-pixel
+    position [K, n-2] (parabola))."""
     c, a_, b_ = score[:, 1:-1], score[:, :-2], score[:, 2:]
-    peak = (c >= p["ray_edge_min"]) & (c >= a_) & (c > b_) & ~bad[:, None]
+    peak = (c >= thr) & (c >= a_) & (c > b_)
     den = a_ - 2.0 * c + b_
     off = np.where(den < 0.0, 0.5 * (a_ - b_) / np.where(den < 0.0, den, -1.0), 0.0)
-    pos = rho[None, 2:-2] + off * 0.5
+    return peak, rho[None, 2:-2] + off * 0.5
+
+
+def _ray_edges(img, dirs, cx, cy, r, win, p, ratio=0.0):
+    """Edge candidates along each ray from (cx, cy): the local maxima, of at least ray_edge_min,
+    of the colour step (see _ray_scores) within [r - win, r + win], sub-pixel (parabola); with a
+    ratio, only those of at least ratio times the median step of their ray. Returns a list per
+    ray of distances from (cx, cy); None for a ray that leaves the frame."""
+    rho, score, bad = _ray_scores(img, dirs, cx, cy, r, win)
+    peak, pos = _peaks(rho, score, p["ray_edge_min"])
+    if ratio > 0.0:
+        srt = np.sort(score, axis=1)
+        n = srt.shape[1]
+        med = (srt[:, (n - 1) // 2] + srt[:, n // 2]) / 2.0
+        peak &= score[:, 1:-1] >= ratio * med[:, None]
     return [None if bad[k] else pos[k][peak[k]].tolist() for k in range(len(dirs))]
 
 
@@ -623,7 +685,8 @@ def _fine(img, dirs, cand, s, p):
             # the shift grid covers the coarse centre's error; the rays reach farther, for the
             # radius's error on top of it
             win = p["consensus_cells"] * s + p["consensus_px"]
-            cands = _ray_edges(img, dirs, cx, cy, r, p["consensus_reach"] * win, p)
+            cands = _ray_edges(img, dirs, cx, cy, r, p["consensus_reach"] * win, p,
+                               p["consensus_edge_ratio"])
         else:
             win = p["fine_window_px"] + p["fine_window_frac"] * r
             cands = _ray_edges(img, dirs, cx, cy, r, win, p)
@@ -641,14 +704,21 @@ def _fine(img, dirs, cand, s, p):
 
 
 def _support(img, dirs, cx, cy, r, p):
-    """Fraction of all rays from (cx, cy) that cross an edge within inlier_px of radius r (rays
-    leaving the frame count as without: a circle mostly outside the frame is not the sphere)."""
-    cands = _ray_edges(img, dirs, cx, cy, r, p["inlier_px"] + 1.0, p)
-    n = 0
-    for c in cands:
-        if c is not None and any(abs(rho - r) <= p["inlier_px"] for rho in c):
-            n += 1
-    return n / len(dirs)
+    """Fraction of all rays from (cx, cy) whose colour step has a local maximum within inlier_px
+    of radius r of at least support_edge_min and support_ratio times the ray's median step from
+    2 inlier_px to support_flank_px off r: noise and texture make steps all along a ray, a rim
+    one at the circle. Rays leaving the frame count as without: a circle mostly outside the
+    frame is not the sphere."""
+    rho, score, bad = _ray_scores(img, dirs, cx, cy, r, p["support_flank_px"])
+    peak, pos = _peaks(rho, score, p["support_edge_min"])
+    flank = np.abs(rho[1:-1] - r) >= 2.0 * p["inlier_px"]
+    fl = np.sort(score[:, flank], axis=1)
+    nf = fl.shape[1]
+    if nf == 0:
+        return 0.0
+    med = (fl[:, (nf - 1) // 2] + fl[:, nf // 2]) / 2.0
+    ok = peak & (np.abs(pos - r) <= p["inlier_px"]) & (score[:, 1:-1] >= p["support_ratio"] * med[:, None])
+    return int((ok.any(axis=1) & ~bad).sum()) / len(dirs)
 
 
 def rim_outside(cx, cy, r, h, w, k=256):

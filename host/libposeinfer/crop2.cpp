@@ -445,39 +445,40 @@ struct RayEdges {
     std::vector<double> cand;
 };
 
-void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
-               double win, double thr, RayEdges &re)
-{
-    const int K = (int)dirs.size() / 2;
-    const long m = ifloor(win * 2.0);
-    const long n = 2 * m + 1;
-    re.ok.assign((size_t)K, 0);
-    re.off.assign((size_t)K + 1, 0);
-    re.cand.clear();
-    const size_t ns = (size_t)n + 2;
-    thread_local std::vector<double> rho, X, Y, FX, FY, v, score;
-    thread_local std::vector<int32_t> Q;
-    rho.resize(ns);
-    X.resize(ns);
-    Y.resize(ns);
-    FX.resize(ns);
-    FY.resize(ns);
-    Q.resize(12 * ns);
-    v.resize(3 * ns);
-    score.resize((size_t)n);
-    for (long j = 0; j < n + 2; j++) rho[(size_t)j] = r + ((double)(j - 1) - (double)m) * 0.5;
-    double p[3];
-    for (int k = 0; k < K; k++) {
-        re.off[(size_t)k] = (int)re.cand.size();
-        const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+// The colour steps along rays (preprocess.py _ray_scores): n = 2 floor(2 win)
+// + 1 scores centred on the samples at rho[1 .. n], rho[j] = r + (j - 1 -
+// floor(2 win)) / 2.
+struct RayScores {
+    long n = 0;
+    std::vector<double> rho, X, Y, FX, FY, v, score;
+    std::vector<int32_t> Q;
+    void setup(double r, double win)
+    {
+        const long m = ifloor(win * 2.0);
+        n = 2 * m + 1;
+        const size_t ns = (size_t)n + 2;
+        rho.resize(ns);
+        X.resize(ns);
+        Y.resize(ns);
+        FX.resize(ns);
+        FY.resize(ns);
+        Q.resize(12 * ns);
+        v.resize(3 * ns);
+        score.resize((size_t)n);
+        for (long j = 0; j < n + 2; j++) rho[(size_t)j] = r + ((double)(j - 1) - (double)m) * 0.5;
+    }
+    // the scores of the ray along (ux, uy) from (cx, cy); false when it leaves the frame
+    bool ray(const Frame &f, double cx, double cy, double ux, double uy)
+    {
+        const size_t ns = (size_t)n + 2;
         for (size_t j = 0; j < ns; j++) {
             X[j] = cx + rho[j] * ux;
             Y[j] = cy + rho[j] * uy;
         }
         // the samples lie on a segment: inside when both ends are (the
         // region [0, w - 1) x [0, h - 1) is convex)
-        if (!sample(f, X[0], Y[0], p) || !sample(f, X[ns - 1], Y[ns - 1], p)) continue;
-        re.ok[(size_t)k] = 1;
+        double p[3];
+        if (!sample(f, X[0], Y[0], p) || !sample(f, X[ns - 1], Y[ns - 1], p)) return false;
         // gather the corners (integers), then the arithmetic in a loop of its own
         for (size_t j = 0; j < ns; j++) {
             const int32_t x0 = (int32_t)X[j], y0 = (int32_t)Y[j];
@@ -495,12 +496,55 @@ void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, doubl
             bilinear(&Q[(0 * 3 + c) * ns], &Q[(1 * 3 + c) * ns], &Q[(2 * 3 + c) * ns],
                      &Q[(3 * 3 + c) * ns], FX.data(), FY.data(), ns, &v[c * ns]);
         step_score(v.data(), ns, score.data());
+        return true;
+    }
+    // local maximum of at least thr at score i (1 .. n - 2); *pos its sub-pixel distance
+    bool peak(long i, double thr, double *pos) const
+    {
+        const double c = score[(size_t)i], a = score[(size_t)i - 1], b = score[(size_t)i + 1];
+        if (!(c >= thr && c >= a && c > b)) return false;
+        const double den = a - 2.0 * c + b;
+        const double o = den < 0.0 ? 0.5 * (a - b) / den : 0.0;
+        *pos = rho[(size_t)i + 1] + o * 0.5;
+        return true;
+    }
+};
+
+// The median of v[0 .. n) (Python's: the mean of the two middle values); reorders v.
+double median_of(double *v, size_t n)
+{
+    std::sort(v, v + n);
+    return (v[(n - 1) / 2] + v[n / 2]) / 2.0;
+}
+
+// ratio > 0: only peaks of at least ratio times their ray's median step.
+void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
+               double win, double thr, double ratio, RayEdges &re)
+{
+    const int K = (int)dirs.size() / 2;
+    thread_local RayScores rs;
+    thread_local std::vector<double> tmp;
+    rs.setup(r, win);
+    const long n = rs.n;
+    re.ok.assign((size_t)K, 0);
+    re.off.assign((size_t)K + 1, 0);
+    re.cand.clear();
+    for (int k = 0; k < K; k++) {
+        re.off[(size_t)k] = (int)re.cand.size();
+        if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
+        re.ok[(size_t)k] = 1;
+        double t = thr;
+        bool by_median = false;
+        if (ratio > 0.0) {
+            tmp.assign(rs.score.begin(), rs.score.begin() + n);
+            t = ratio * median_of(tmp.data(), (size_t)n);
+            by_median = true;
+        }
         for (long i = 1; i < n - 1; i++) {
-            const double c = score[(size_t)i], a = score[(size_t)i - 1], b = score[(size_t)i + 1];
-            if (!(c >= thr && c >= a && c > b)) continue;
-            const double den = a - 2.0 * c + b;
-            const double o = den < 0.0 ? 0.5 * (a - b) / den : 0.0;
-            re.cand.push_back(rho[(size_t)i + 1] + o * 0.5);
+            double pos;
+            if (!rs.peak(i, thr, &pos)) continue;
+            if (by_median && !(rs.score[(size_t)i] >= t)) continue;
+            re.cand.push_back(pos);
         }
     }
     re.off[(size_t)K] = (int)re.cand.size();
@@ -675,22 +719,36 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
 }
 
 // Support of a circle (preprocess.py _support): the fraction of all rays
-// with an edge candidate within inlier_px of r.
+// with a step peak within inlier_px of r of at least support_edge_min and
+// support_ratio times the ray's median step 2 inlier_px to support_flank_px
+// off r.
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
-               const pp_params *p, RayEdges &re)
+               const pp_params *p)
 {
     const int K = (int)dirs.size() / 2;
-    ray_edges(f, dirs, cx, cy, r, p->inlier_px + 1.0, p->ray_edge_min, re);
-    int n = 0;
+    thread_local RayScores rs;
+    thread_local std::vector<double> fl;
+    rs.setup(r, p->support_flank_px);
+    const long n = rs.n;
+    int cnt = 0;
     for (int k = 0; k < K; k++) {
-        if (!re.ok[(size_t)k]) continue;
-        for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++)
-            if (std::fabs(re.cand[(size_t)i] - r) <= p->inlier_px) {
-                n++;
+        if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
+        fl.clear();
+        for (long i = 0; i < n; i++)
+            if (std::fabs(rs.rho[(size_t)i + 1] - r) >= 2.0 * p->inlier_px)
+                fl.push_back(rs.score[(size_t)i]);
+        if (fl.empty()) return 0.0;
+        const double t = p->support_ratio * median_of(fl.data(), fl.size());
+        for (long i = 1; i < n - 1; i++) {
+            double pos;
+            if (rs.peak(i, p->support_edge_min, &pos) && std::fabs(pos - r) <= p->inlier_px &&
+                rs.score[(size_t)i] >= t) {
+                cnt++;
                 break;
             }
+        }
     }
-    return (double)n / K;
+    return (double)cnt / K;
 }
 
 // Refine a coarse circle (preprocess.py _fine). False: none.
@@ -704,7 +762,7 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
         const double win = ps == 0 ? p->consensus_cells * s + p->consensus_px
                                    : p->fine_window_px + p->fine_window_frac * r;
         ray_edges(f, dirs, cx, cy, r, ps == 0 ? p->consensus_reach * win : win, p->ray_edge_min,
-                  re);
+                  ps == 0 ? p->consensus_edge_ratio : 0.0, re);
         double sx = cx, sy = cy, sr = r;
         if (ps == 0) {
             double dx, dy, rr;
@@ -722,7 +780,7 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
     out->cx = cx;
     out->cy = cy;
     out->r = r;
-    out->support = support(f, dirs, cx, cy, r, p, re);
+    out->support = support(f, dirs, cx, cy, r, p);
     return true;
 }
 

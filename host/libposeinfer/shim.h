@@ -36,8 +36,9 @@ typedef struct pp_params {
     double r_min_frac, r_max_frac, r_tol;
     int coarse_size, candidates, rays, fine_passes, irls_iters;
     double coarse_rbin, edge_min, cand_frac, ray_edge_min;
-    double consensus_cells, consensus_px, consensus_step_px, consensus_reach;
+    double consensus_cells, consensus_px, consensus_step_px, consensus_reach, consensus_edge_ratio;
     double fine_window_px, fine_window_frac, tukey_c, sigma_min_px, inlier_px;
+    double support_edge_min, support_ratio, support_flank_px;
     double min_support, max_cut, mask_frac, fill[3];
     /* the camera (v2): expected radius, undistortion; its map (shim_camera_prepare) */
     pp_camera cam;

@@ -106,6 +106,22 @@ def test_parameters():
         pp.params({"name": "sphere-crop-v9"})
 
 
+@pytest.mark.parametrize("defaults", [pp.DEFAULTS_V1, pp.DEFAULTS_V2], ids=["v1", "v2"])
+def test_a_model_lacking_a_key_is_refused_naming_it(defaults):
+    # a model's metadata fills nothing from the defaults (as the C runtime): each key left out in turn
+    assert pp.params(json.dumps(defaults), model="m.onnx") == defaults
+    for k in defaults:
+        meta = {key: v for key, v in defaults.items() if key != k}
+        with pytest.raises(ValueError, match=f'm.onnx: metadata spherepose.preprocess: .*"{k}"'):
+            pp.params(json.dumps(meta), model="m.onnx")
+    with pytest.raises(ValueError, match='unknown .* key "sharpen"'):
+        pp.params(json.dumps(dict(defaults, sharpen=1)), model="m.onnx")
+    with pytest.raises(ValueError, match="m.onnx: missing metadata key spherepose.preprocess"):
+        pp.params(None, model="m.onnx")
+    with pytest.raises(ValueError, match="not a JSON object"):
+        pp.params("{not json", model="m.onnx")
+
+
 def test_v1_still_works():
     p = pp.params({"name": "sphere-crop-v1"})
     img = np.full((H, W, 3), (35, 45, 55), np.uint8)

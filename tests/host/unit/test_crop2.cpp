@@ -30,12 +30,18 @@ extern "C" {
 
 // The v2 defaults, as training/preprocess.py DEFAULTS_V2 writes them.
 static const char *V2 =
-    "{\"name\": \"sphere-crop-v2\", \"size\": 128, \"margin\": 1.15, \"mean\": [0.485, 0.456, 0.406], "
+    "{\"name\": \"sphere-crop-v2\", \"size\": 128, \"margin\": 1.15, \"mean\": [0.485, 0.456, "
+    "0.406], "
     "\"std\": [0.229, 0.224, 0.225], \"r_min_frac\": 0.05, \"r_max_frac\": 0.5, \"r_tol\": 0.15, "
-    "\"coarse_size\": 170, \"coarse_rbin\": 0.08, \"edge_min\": 24, \"candidates\": 4, \"cand_frac\": 0.35, "
-    "\"rays\": 128, \"ray_edge_min\": 12, \"consensus_cells\": 4, \"consensus_px\": 4, \"consensus_step_px\": 2, "
-    "\"consensus_reach\": 1.5, \"fine_passes\": 3, \"fine_window_px\": 3, \"fine_window_frac\": 0.02, "
-    "\"irls_iters\": 6, \"tukey_c\": 4.0, \"sigma_min_px\": 0.3, \"inlier_px\": 1.0, \"min_support\": 0.5, "
+    "\"coarse_size\": 170, \"coarse_rbin\": 0.08, \"edge_min\": 24, \"candidates\": 4, "
+    "\"cand_frac\": 0.35, "
+    "\"rays\": 128, \"ray_edge_min\": 12, \"consensus_cells\": 4, \"consensus_px\": 4, "
+    "\"consensus_step_px\": 2, "
+    "\"consensus_reach\": 1.5, \"consensus_edge_ratio\": 2.0, \"fine_passes\": 3, "
+    "\"fine_window_px\": 3, \"fine_window_frac\": 0.02, "
+    "\"irls_iters\": 6, \"tukey_c\": 4.0, \"sigma_min_px\": 0.3, \"inlier_px\": 1.0, "
+    "\"support_edge_min\": 8, "
+    "\"support_ratio\": 2.5, \"support_flank_px\": 8, \"min_support\": 0.42, "
     "\"max_cut\": 0.15, \"mask_frac\": 0.02, \"fill\": [128, 128, 128]}";
 
 static pp_params v2(void)
@@ -51,13 +57,15 @@ static cv::Mat clutter(std::mt19937 &rng, int w, int h)
 {
     std::uniform_int_distribution<int> u(0, 255);
     cv::Mat m(h, w, CV_8UC3);
-    for (int y = 0; y < h; y++)
-        m.row(y).setTo(cv::Scalar(60 + y * 80 / h, 70, 90 - y * 40 / h));
+    for (int y = 0; y < h; y++) m.row(y).setTo(cv::Scalar(60 + y * 80 / h, 70, 90 - y * 40 / h));
     for (int i = 0; i < 30; i++) {
         const cv::Scalar c(u(rng), u(rng), u(rng));
-        const cv::Point a(u(rng) * w / 256, u(rng) * h / 256), b(u(rng) * w / 256, u(rng) * h / 256);
-        if (i % 2) cv::rectangle(m, a, a + cv::Point(10 + u(rng) / 3, 10 + u(rng) / 4), c, cv::FILLED);
-        else cv::line(m, a, b, c, 1 + u(rng) % 4, cv::LINE_AA);
+        const cv::Point a(u(rng) * w / 256, u(rng) * h / 256),
+            b(u(rng) * w / 256, u(rng) * h / 256);
+        if (i % 2)
+            cv::rectangle(m, a, a + cv::Point(10 + u(rng) / 3, 10 + u(rng) / 4), c, cv::FILLED);
+        else
+            cv::line(m, a, b, c, 1 + u(rng) % 4, cv::LINE_AA);
     }
     return m;
 }
@@ -68,19 +76,22 @@ static void disc(cv::Mat &m, double cx, double cy, double r, std::mt19937 &rng)
 {
     std::uniform_int_distribution<int> u(0, 255);
     const int S = 16;
-    cv::circle(m, cv::Point((int)std::lround(cx * S), (int)std::lround(cy * S)), (int)std::lround(r * S),
-               cv::Scalar(200, 190, 170), cv::FILLED, cv::LINE_AA, 4);
+    cv::circle(m, cv::Point((int)std::lround(cx * S), (int)std::lround(cy * S)),
+               (int)std::lround(r * S), cv::Scalar(200, 190, 170), cv::FILLED, cv::LINE_AA, 4);
     for (int i = 0; i < 10; i++) {
         const double a = u(rng) / 256.0 * 6.283, d = u(rng) / 256.0 * r * 0.7;
-        cv::circle(m, cv::Point((int)(cx + d * std::cos(a)), (int)(cy + d * std::sin(a))), (int)(r * 0.12),
-                   cv::Scalar(u(rng) / 2, u(rng) / 2, u(rng) / 2), cv::FILLED, cv::LINE_AA);
+        cv::circle(m, cv::Point((int)(cx + d * std::cos(a)), (int)(cy + d * std::sin(a))),
+                   (int)(r * 0.12), cv::Scalar(u(rng) / 2, u(rng) / 2, u(rng) / 2), cv::FILLED,
+                   cv::LINE_AA);
     }
 }
 
-static int find(const cv::Mat &m, const pp_params *p, double *cx, double *cy, double *r, std::string *why)
+static int find(const cv::Mat &m, const pp_params *p, double *cx, double *cy, double *r,
+                std::string *why)
 {
     char err[256] = "";
-    const int rc = crop2::find_sphere(m.data, m.cols, m.rows, m.step[0], p, cx, cy, r, err, sizeof err);
+    const int rc =
+        crop2::find_sphere(m.data, m.cols, m.rows, m.step[0], p, cx, cy, r, err, sizeof err);
     *why = err;
     return rc;
 }
@@ -90,19 +101,22 @@ static void circle_with_post_and_clutter(void **state)
     (void)state;
     const pp_params p = v2();
     std::mt19937 rng(3);
-    const double cases[][4] = {{320.25, 250.5, 120.0, 90}, {180.0, 330.75, 95.5, 0}, {450.5, 160.0, 110.0, 225}};
+    const double cases[][4] = {
+        {320.25, 250.5, 120.0, 90}, {180.0, 330.75, 95.5, 0}, {450.5, 160.0, 110.0, 225}};
     for (const auto &c : cases) {
         cv::Mat m = clutter(rng, 640, 512);
         // the post: from the centre outward, drawn before the sphere
         const double a = c[3] * M_PI / 180;
-        cv::line(m, cv::Point((int)c[0], (int)c[1]), cv::Point((int)(c[0] + 900 * std::cos(a)), (int)(c[1] + 900 * std::sin(a))),
+        cv::line(m, cv::Point((int)c[0], (int)c[1]),
+                 cv::Point((int)(c[0] + 900 * std::cos(a)), (int)(c[1] + 900 * std::sin(a))),
                  cv::Scalar(40, 45, 50), (int)(c[2] * 0.4), cv::LINE_AA);
         disc(m, c[0], c[1], c[2], rng);
         double cx, cy, r;
         std::string why;
         assert_int_equal(find(m, &p, &cx, &cy, &r, &why), 0);
         assert_true(std::hypot(cx - c[0], cy - c[1]) < 0.5);
-        assert_true(std::fabs(r - (c[2] + 0.5)) < 0.3);  // cv::circle's anti-aliased edge lies at r + 0.5
+        assert_true(std::fabs(r - (c[2] + 0.5)) <
+                    0.3); // cv::circle's anti-aliased edge lies at r + 0.5
     }
 }
 
@@ -122,9 +136,10 @@ static void clear_errors(void **state)
     assert_int_equal(find(two, &p, &cx, &cy, &r, &why), -1);
     assert_true(why.rfind("two spheres in frame (circles at (", 0) == 0);
     cv::Mat cut = clutter(rng, 640, 512);
-    disc(cut, 639 - 120 * std::cos(M_PI / 4), 250, 120, rng);  // a quarter of the rim outside
+    disc(cut, 639 - 120 * std::cos(M_PI / 4), 250, 120, rng); // a quarter of the rim outside
     assert_int_equal(find(cut, &p, &cx, &cy, &r, &why), -1);
-    assert_true(why.rfind("sphere cut by the frame edge (25 % of its rim outside the frame", 0) == 0);
+    assert_true(why.rfind("sphere cut by the frame edge (25 % of its rim outside the frame", 0) ==
+                0);
 }
 
 static void crop_keeps_only_the_circle(void **state)
@@ -144,7 +159,10 @@ static void crop_keeps_only_the_circle(void **state)
             const double d = std::hypot(x + 0.5 - S / 2.0, y + 0.5 - S / 2.0);
             const bool filled = q[0] == 128 && q[1] == 128 && q[2] == 128;
             if (d > keep + 1) assert_true(filled);
-            if (d < keep - 1) { assert_false(filled); inside++; }
+            if (d < keep - 1) {
+                assert_false(filled);
+                inside++;
+            }
         }
     assert_true(inside > 0);
 }
@@ -160,7 +178,7 @@ static void undistortion_map(void **state)
     cam.focal_mm = 16;
     cam.pixel_mm = 0.0096;
     crop2::UndistortMap m;
-    crop2::undistort_map(&cam, 64, 48, &m);  // no distortion: the identity, in 1/32 px
+    crop2::undistort_map(&cam, 64, 48, &m); // no distortion: the identity, in 1/32 px
     for (int y = 0; y < 48; y++)
         for (int x = 0; x < 64; x++) {
             assert_int_equal(m.mx[(size_t)y * 64 + x], 32 * x);
@@ -207,7 +225,8 @@ static void parameters_name_what_is_wrong(void **state)
     assert_int_equal(pi_parse_preprocess(extra.c_str(), &p, err, "m.onnx"), -1);
     assert_non_null(strstr(err, "unknown sphere-crop-v2 key \"sharpen\""));
     std::string bad = t;
-    bad.replace(bad.find("\"min_support\": 0.5"), strlen("\"min_support\": 0.5"), "\"min_support\": 2");
+    bad.replace(bad.find("\"min_support\": 0.42"), strlen("\"min_support\": 0.42"),
+                "\"min_support\": 2");
     assert_int_equal(pi_parse_preprocess(bad.c_str(), &p, err, "m.onnx"), -1);
     assert_non_null(strstr(err, "\"min_support\""));
     std::string r12 = t;
@@ -237,11 +256,15 @@ static void camera_file(void **state)
     close(fd);
     pp_camera cam;
     char err[256];
-    assert_int_equal(write_file(path, "{\"width\": 800, \"height\": 600, \"principal_px\": [401, 299.5], "
-                                      "\"distortion\": [-0.1, 0.02, 0, 0, 0]}"), 0);
+    assert_int_equal(write_file(path,
+                                "{\"width\": 800, \"height\": 600, \"principal_px\": [401, 299.5], "
+                                "\"distortion\": [-0.1, 0.02, 0, 0, 0]}"),
+                     0);
     assert_int_equal(pp_camera_load(path, &cam, err), 0);
-    assert_true(cam.set && cam.width == 800 && cam.has_principal && cam.principal[1] == 299.5 && cam.distorted);
-    assert_true(cam.focal_mm == 16.0 && cam.distance_mm == 250.0);  // missing keys: the reference camera
+    assert_true(cam.set && cam.width == 800 && cam.has_principal && cam.principal[1] == 299.5 &&
+                cam.distorted);
+    assert_true(cam.focal_mm == 16.0 &&
+                cam.distance_mm == 250.0); // missing keys: the reference camera
     const char *bad[][2] = {{"{\"focal\": 16}", "unknown key \"focal\""},
                             {"{\"distortion\": [0.1]}", "\"distortion\" must be a list of 5"},
                             {"{\"width\": 640.5}", "\"width\" must be a whole number"},
