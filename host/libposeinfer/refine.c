@@ -585,7 +585,8 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
     for (int c = 0; c < 3; c++) {
         const double *q = acc[c];
         double(*M)[6] = fit->AtA[c];
-        /* rows (T, T nx, T ny, T nz, 1): T^2 m[...] above the diagonal, T m[...] in the last column */
+        /* rows (T, T nx, T ny, T nz, 1): T^2 m[...] above the diagonal, T m[...] in the
+         * last column */
         static const int idx[4][4] = {{0, 1, 2, 3}, {1, 4, 5, 6}, {2, 5, 7, 8}, {3, 6, 8, 9}};
         for (int i = 0; i < 4; i++) {
             for (int j = i; j < 4; j++) M[i][j] = q[idx[i][j]];
