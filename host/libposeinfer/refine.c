@@ -27,12 +27,19 @@ struct rf_texture {
     float *px[RF_LEVELS]; /* [h][w][3], BGR; exact (8-bit values / 4^k) */
 };
 
+/* Where a sampled pixel reads the texture (tex_coords). */
+typedef struct rf_tc {
+    uint32_t o[4]; /* offsets of texels (i0, j0), (i1, j0), (i0, j1), (i1, j1) */
+    double fx, fy, dut0, dut2, dvt1;
+} rf_tc;
+
 /* Per sampled pixel: what a step's Jacobian pass needs from its value pass. */
 typedef struct rf_pix {
     double obs[3], val[3], n[3];
     double grad[3][3]; /* d val_c / d b, the body direction */
     double t;          /* the ray's length to the sphere */
     int flat;          /* the texture is constant around it: J = 0 */
+    rf_tc tc;
 } rf_pix;
 
 /* The photometric fit of one evaluation (per channel, 5 coefficients). */
@@ -408,9 +415,10 @@ static inline double atan2_fast(double y, double x)
     return y < 0 ? -a : a;
 }
 
-/* Bilinear value (3 channels) at body direction b, and d value / d b. */
-static inline void tex_sample(const float *tex, int w, int h, const double b[3], double val[3],
-                              double grad[3][3])
+/* Where body direction b reads the texture: the four texels' offsets, the
+ * bilinear weights and d (u, v) / d b. The first half of a bilinear lookup;
+ * tex_gather is the second, so that the texels can be fetched ahead. */
+static inline void tex_coords(int w, int h, const double b[3], rf_tc *tc)
 {
     double bx = b[0], by = b[1], bz = b[2];
     double rho2 = bx * bx + bz * bz;
@@ -425,7 +433,8 @@ static inline void tex_sample(const float *tex, int w, int h, const double b[3],
     long i0 = (long)ut, j0 = (long)vt;
     if ((double)i0 > ut) i0--;
     if ((double)j0 > vt) j0--;
-    double fx = ut - (double)i0, fy = vt - (double)j0;
+    tc->fx = ut - (double)i0;
+    tc->fy = vt - (double)j0;
     if (i0 < 0) i0 += w;
     if (i0 >= w) i0 -= w;
     long i1 = i0 + 1 == w ? 0 : i0 + 1, j1 = j0 + 1;
@@ -433,11 +442,22 @@ static inline void tex_sample(const float *tex, int w, int h, const double b[3],
     if (j1 < 0) j1 = 0;
     if (j0 > h - 1) j0 = h - 1;
     if (j0 < 0) j0 = 0;
-    const float *t00 = tex + ((size_t)j0 * w + i0) * 3, *t10 = tex + ((size_t)j0 * w + i1) * 3;
-    const float *t01 = tex + ((size_t)j1 * w + i0) * 3, *t11 = tex + ((size_t)j1 * w + i1) * 3;
+    tc->o[0] = (uint32_t)((j0 * w + i0) * 3);
+    tc->o[1] = (uint32_t)((j0 * w + i1) * 3);
+    tc->o[2] = (uint32_t)((j1 * w + i0) * 3);
+    tc->o[3] = (uint32_t)((j1 * w + i1) * 3);
     double kw = w / (2 * M_PI), kh = -h / M_PI, krho = kw / rho2;
-    double dut[3] = {bz * krho, 0, -bx * krho};
-    double dvt1 = kh / rho;
+    tc->dut0 = bz * krho;
+    tc->dut2 = -bx * krho;
+    tc->dvt1 = kh / rho;
+}
+
+/* Bilinear value (3 channels) and d value / d b (training/refine.py sample). */
+static inline void tex_gather(const float *tex, const rf_tc *tc, double val[3], double grad[3][3])
+{
+    const float *t00 = tex + tc->o[0], *t10 = tex + tc->o[1];
+    const float *t01 = tex + tc->o[2], *t11 = tex + tc->o[3];
+    double fx = tc->fx, fy = tc->fy;
     for (int c = 0; c < 3; c++) {
         double a00 = t00[c], a10 = t10[c], a01 = t01[c], a11 = t11[c];
         double top = a00 + fx * (a10 - a00);
@@ -445,9 +465,9 @@ static inline void tex_sample(const float *tex, int w, int h, const double b[3],
         val[c] = top + fy * (bot - top);
         double du = (a10 - a00) + fy * ((a11 - a01) - (a10 - a00));
         double dv = bot - top;
-        grad[c][0] = du * dut[0];
-        grad[c][1] = dv * dvt1;
-        grad[c][2] = du * dut[2];
+        grad[c][0] = du * tc->dut0;
+        grad[c][1] = dv * tc->dvt1;
+        grad[c][2] = du * tc->dut2;
     }
 }
 
@@ -543,13 +563,21 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
     double oo[3], acc[3][20];
     memset(fit, 0, sizeof *fit);
     memset(acc, 0, sizeof acc);
+    /* first where every pixel reads the texture, asking for those texels
+     * ahead: they are mostly out of the caches after the network has run */
     for (long k = 0; k < np; k++) {
         rf_pix *p = &w->pix[k];
         double b[3];
         normal_at(uv[2 * k], uv[2 * k + 1], &geo, p->n, &p->t);
         for (int i = 0; i < 3; i++)
             b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
-        tex_sample(tex, tw, th, b, p->val, p->grad);
+        tex_coords(tw, th, b, &p->tc);
+        __builtin_prefetch(tex + p->tc.o[0]);
+        __builtin_prefetch(tex + p->tc.o[2]);
+    }
+    for (long k = 0; k < np; k++) {
+        rf_pix *p = &w->pix[k];
+        tex_gather(tex, &p->tc, p->val, p->grad);
         if (w->gray) {
             double y = p->val[0] * RF_LUMA_B + p->val[1] * RF_LUMA_G + p->val[2] * RF_LUMA_R;
             for (int i = 0; i < 3; i++) {
