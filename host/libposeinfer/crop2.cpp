@@ -69,27 +69,49 @@ inline long ifloor(double x)
 
 // ---- coarse stage -------------------------------------------------------------
 
-// out[i] = sum of rows[0..s)[i]: 16-bit sums while they cannot overflow
-// (s <= 257), twice the bytes per instruction of 32-bit ones.
-KERN2_CLONES void sum_rows(const uint8_t *p, size_t stride, int s, size_t n, int32_t *out)
+// One row of s x s block sums, s <= 16 (a sum fits 16 bits): col = the s
+// rows summed per byte, then h[i] = col[i] + col[i + 3] + ... + col[i + 3 (s -
+// 1)], the block of pixel column X and channel c being h[3 s X + c].
+KERN2_CLONES void block_sums(const uint8_t *p, size_t stride, int s, size_t nbytes, uint16_t *col,
+                             uint16_t *h)
 {
-    if (s <= 257) {
-        thread_local std::vector<uint16_t> t;
-        if (t.size() < n) t.resize(n);
-        uint16_t *a = t.data();
-        for (size_t i = 0; i < n; i++) a[i] = p[i];
-        for (int y = 1; y < s; y++) {
-            const uint8_t *q = p + (size_t)y * stride;
-            for (size_t i = 0; i < n; i++) a[i] = (uint16_t)(a[i] + q[i]);
-        }
-        for (size_t i = 0; i < n; i++) out[i] = a[i];
-        return;
-    }
-    for (size_t i = 0; i < n; i++) out[i] = 0;
-    for (int y = 0; y < s; y++) {
+    for (size_t i = 0; i < nbytes; i++) col[i] = p[i];
+    for (int y = 1; y < s; y++) {
         const uint8_t *q = p + (size_t)y * stride;
-        for (size_t i = 0; i < n; i++) out[i] += q[i];
+        for (size_t i = 0; i < nbytes; i++) col[i] = (uint16_t)(col[i] + q[i]);
     }
+    const size_t m = nbytes - 3 * (size_t)(s - 1);
+    for (size_t i = 0; i < m; i++) h[i] = col[i];
+    for (int xx = 1; xx < s; xx++) {
+        const uint16_t *c = col + 3 * xx;
+        for (size_t i = 0; i < m; i++) h[i] = (uint16_t)(h[i] + c[i]);
+    }
+}
+
+// q[i] = (v[i] + half) / n as (v[i] + half) * mul >> sh (mul, sh checked exact
+// for every possible sum), for a row of reduced pixels.
+KERN2_CLONES void block_means(const uint32_t *v, size_t n, uint32_t half, uint32_t mul, int sh,
+                              int32_t *q)
+{
+    for (size_t i = 0; i < n; i++) q[i] = (int32_t)(((v[i] + half) * mul) >> sh);
+}
+
+// A multiplier and shift with (v * mul) >> sh == v / n for every v in 0 ..
+// vmax, all products below 2^32; false when there is none.
+bool exact_divider(uint32_t n, uint32_t vmax, uint32_t *mul, int *sh)
+{
+    for (int k = 8; k < 32; k++) {
+        const uint64_t m = ((1ull << k) + n - 1) / n;
+        if ((uint64_t)vmax * m >= (1ull << 32)) break;
+        bool ok = true;
+        for (uint32_t v = 0; v <= vmax && ok; v++) ok = (uint32_t)(((uint64_t)v * m) >> k) == v / n;
+        if (ok) {
+            *mul = (uint32_t)m;
+            *sh = k;
+            return true;
+        }
+    }
+    return false;
 }
 
 // Block means of s x s blocks, rounded half up; the remainder dropped.
@@ -99,21 +121,38 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
     *hs = h / s;
     *ws = w / s;
     red.resize((size_t)*hs * *ws * 3);
-    const int32_t n = s * s, half = n / 2;
-    const size_t nbytes = (size_t)*ws * s * 3;
-    std::vector<int32_t> &row = scratch.row;
-    row.resize(nbytes);
-    // (sum + half) / n for every possible block sum, rounded half up
-    // (small blocks; larger ones divide)
-    thread_local std::vector<int32_t> quot;
-    const bool table = n <= 64;
-    if (table) {
-        quot.resize((size_t)255 * n + 1);
-        for (int32_t v = 0; v <= 255 * n; v++) quot[(size_t)v] = (v + half) / n;
+    const uint32_t n = (uint32_t)s * (uint32_t)s, half = n / 2;
+    const size_t nbytes = (size_t)*ws * s * 3, nout = (size_t)*ws * 3;
+    // the divider of the last s (frames of one size keep theirs)
+    thread_local uint32_t div_n = 0, div_mul = 0;
+    thread_local int div_sh = -1;
+    if (div_n != n) {
+        div_n = n;
+        if (s > 16 || !exact_divider(n, 255 * n + half, &div_mul, &div_sh)) div_sh = -1;
     }
+    if (div_sh >= 0) {
+        thread_local std::vector<uint16_t> col, hsum;
+        thread_local std::vector<uint32_t> pick;
+        col.resize(nbytes);
+        hsum.resize(nbytes);
+        pick.resize(nout);
+        for (int Y = 0; Y < *hs; Y++) {
+            block_sums(bgr + (size_t)Y * s * stride, stride, s, nbytes, col.data(), hsum.data());
+            for (int X = 0; X < *ws; X++)
+                for (int c = 0; c < 3; c++) pick[(size_t)X * 3 + c] = hsum[(size_t)X * 3 * s + c];
+            block_means(pick.data(), nout, half, div_mul, div_sh, &red[(size_t)Y * nout]);
+        }
+        return;
+    }
+    std::vector<int32_t> &row = scratch.row;
+    row.assign(nbytes, 0);
     for (int Y = 0; Y < *hs; Y++) {
-        sum_rows(bgr + (size_t)Y * s * stride, stride, s, nbytes, row.data());
-        int32_t *o = &red[(size_t)Y * *ws * 3];
+        std::fill(row.begin(), row.end(), 0);
+        for (int y = 0; y < s; y++) {
+            const uint8_t *q = bgr + ((size_t)Y * s + y) * stride;
+            for (size_t i = 0; i < nbytes; i++) row[i] += q[i];
+        }
+        int32_t *o = &red[(size_t)Y * nout];
         for (int X = 0; X < *ws; X++) {
             const int32_t *q = &row[(size_t)X * s * 3];
             int32_t b = 0, g = 0, r = 0;
@@ -122,15 +161,9 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
                 g += q[1];
                 r += q[2];
             }
-            if (table) {
-                o[3 * X] = quot[(size_t)b];
-                o[3 * X + 1] = quot[(size_t)g];
-                o[3 * X + 2] = quot[(size_t)r];
-            } else {
-                o[3 * X] = (b + half) / n; // non-negative: / floors
-                o[3 * X + 1] = (g + half) / n;
-                o[3 * X + 2] = (r + half) / n;
-            }
+            o[3 * X] = (b + (int32_t)half) / (int32_t)n; // non-negative: / floors
+            o[3 * X + 1] = (g + (int32_t)half) / (int32_t)n;
+            o[3 * X + 2] = (r + (int32_t)half) / (int32_t)n;
         }
     }
 }
@@ -190,40 +223,39 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
                      &GX[(size_t)i * gw], &GY[(size_t)i * gw]);
     }
     const double emin2 = edge_min * edge_min;
-    e.x.reserve(4096);
-    e.y.reserve(4096);
-    e.gx.reserve(4096);
-    e.gy.reserve(4096);
+    // branch-free: the neighbours' offset by conditional moves, each edge
+    // written at the end and kept by advancing the count
+    const size_t cap = (size_t)gh * gw + 1;
+    if (e.x.size() < cap) {
+        e.x.resize(cap);
+        e.y.resize(cap);
+        e.gx.resize(cap);
+        e.gy.resize(cap);
+    }
+    size_t ne = 0;
+    const long Pl = (long)P;
     for (int i = 0; i < gh; i++) {
         const int32_t *mrow = &M[(size_t)(i + 1) * P + 1];
         for (int j = 0; j < gw; j++) {
             if (!((double)mrow[j] >= emin2)) continue;
             const size_t c = (size_t)(i + 1) * P + (j + 1);
-            const int64_t m = M[c];
-            const int64_t gxv = GX[(size_t)i * gw + j], gyv = GY[(size_t)i * gw + j];
-            const int64_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
-            int64_t a, b;
-            if (5 * ay <= 2 * ax) {
-                a = M[c - 1];
-                b = M[c + 1];
-            } else if (5 * ax <= 2 * ay) {
-                a = M[c - P];
-                b = M[c + P];
-            } else if ((gxv > 0) == (gyv > 0)) {
-                a = M[c - P - 1];
-                b = M[c + P + 1];
-            } else {
-                a = M[c - P + 1];
-                b = M[c + P - 1];
-            }
-            if (m >= a && m >= b) {
-                e.x.push_back(j + 1);
-                e.y.push_back(i + 1);
-                e.gx.push_back((int32_t)gxv);
-                e.gy.push_back((int32_t)gyv);
-            }
+            const int32_t m = M[c];
+            const int32_t gxv = GX[(size_t)i * gw + j], gyv = GY[(size_t)i * gw + j];
+            const int32_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
+            const long diag = (gxv > 0) == (gyv > 0) ? Pl + 1 : Pl - 1;
+            const long off = 5 * ay <= 2 * ax ? 1 : (5 * ax <= 2 * ay ? Pl : diag);
+            const int32_t a = M[(size_t)((long)c - off)], b = M[(size_t)((long)c + off)];
+            e.x[ne] = j + 1;
+            e.y[ne] = i + 1;
+            e.gx[ne] = gxv;
+            e.gy[ne] = gyv;
+            ne += (m >= a) & (m >= b);
         }
     }
+    e.x.resize(ne);
+    e.y.resize(ne);
+    e.gx.resize(ne);
+    e.gy.resize(ne);
 }
 
 // Radius (reduced pixels) about centre (Xc, Yc) between lo and hi: histogram
@@ -254,17 +286,63 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
     return lo + bi;
 }
 
-// The cells an edge at (x, y) with unit gradient (ux, uy) votes for at signed
-// radii sr[k]: floor(x - sr ux + 0.5), floor(y - sr uy + 0.5) as Y * ws + X,
-// -1 outside. Its own loop so that it vectorises.
-KERN2_CLONES void vote_cells(const double *sr, int n, double x, double y, double ux, double uy,
-                             int ws, int hs, int32_t *cell)
+// The accumulator slots an edge at (x, y) with unit gradient (ux, uy) votes
+// for at signed radii sr[k]: boff[k] + Y * ws + X for the cell X = floor(x -
+// sr ux + 0.5), Y = floor(y - sr uy + 0.5), `trash` outside. Its own loop so
+// that it vectorises.
+KERN2_CLONES void vote_cells(const double *sr, const int32_t *boff, int n, double x, double y,
+                             double ux, double uy, int ws, int hs, int32_t trash, int32_t *cell)
 {
     // x, y, sr are within the frame's size (<= 16384 * 2): floor32 is exact
     for (int k = 0; k < n; k++) {
         const int32_t X = floor32(x - sr[k] * ux + 0.5), Y = floor32(y - sr[k] * uy + 0.5);
         const int32_t in = (X >= 0) & (X < ws) & (Y >= 0) & (Y < hs);
-        cell[k] = in ? Y * ws + X : -1;
+        cell[k] = in ? boff[k] + Y * ws + X : trash;
+    }
+}
+
+// The unit gradient of each edge: g / sqrt(gx^2 + gy^2), as preprocess.py.
+KERN2_CLONES void unit_gradients(const int32_t *gx, const int32_t *gy, size_t n,
+                                 std::vector<double> &ux, std::vector<double> &uy)
+{
+    ux.resize(n);
+    uy.resize(n);
+    double *a = ux.data(), *b = uy.data();
+    for (size_t i = 0; i < n; i++) {
+        const double x = gx[i], y = gy[i];
+        const double m = std::sqrt((double)((int64_t)gx[i] * gx[i] + (int64_t)gy[i] * gy[i]));
+        a[i] = x / m;
+        b[i] = y / m;
+    }
+}
+
+// One radius bin of the coarse accumulator: the 3 x 3 box sum (zeros
+// outside) of it plus the next bin (when there is one), and per cell the
+// largest so far (vmax) and its bin (bmax, the first on ties). hsum has
+// (hs + 2) ws cells, its first and last rows zero. Whole-plane loops, so
+// that they vectorise.
+KERN2_CLONES void box_max(const int32_t *a, const int32_t *next, int hs, int ws, int32_t b,
+                          int32_t *pair, int32_t *hsum, int32_t *vmax, int32_t *bmax)
+{
+    const size_t plane = (size_t)hs * ws;
+    if (next)
+        for (size_t c = 0; c < plane; c++) pair[c] = a[c] + next[c];
+    else
+        for (size_t c = 0; c < plane; c++) pair[c] = a[c];
+    int32_t *h = hsum + ws;
+    for (size_t c = 1; c + 1 < plane; c++) h[c] = pair[c - 1] + pair[c] + pair[c + 1];
+    // each row's ends: no neighbour beyond the row
+    for (int Y = 0; Y < hs; Y++) {
+        const int32_t *r = pair + (size_t)Y * ws;
+        int32_t *hr = h + (size_t)Y * ws;
+        hr[0] = r[0] + (ws > 1 ? r[1] : 0);
+        if (ws > 1) hr[ws - 1] = r[ws - 2] + r[ws - 1];
+    }
+    for (size_t c = 0; c < plane; c++) {
+        const int32_t v = hsum[c] + hsum[c + ws] + hsum[c + 2 * (size_t)ws];
+        const int32_t gt = v > vmax[c];
+        vmax[c] = gt ? v : vmax[c];
+        bmax[c] = gt ? b : bmax[c];
     }
 }
 
@@ -276,10 +354,14 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const int s = std::max(1, std::min(h, w) / p->coarse_size);
     *s_out = s;
     int hs, ws;
-    std::vector<int32_t> red;
+    std::vector<int32_t> &red = scratch.red;
     reduce(bgr, stride, w, h, s, red, &hs, &ws);
     if (hs < 8 || ws < 8) return out;
-    Edges e;
+    thread_local Edges e;
+    e.x.clear();
+    e.y.clear();
+    e.gx.clear();
+    e.gy.clear();
     edges(red, hs, ws, p->edge_min, e);
     if (e.x.empty()) return out;
     const long lo = std::max(1L, ifloor(rmin / s));
@@ -305,7 +387,7 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const int nb = bins.back() + 1;
     const size_t plane = (size_t)hs * ws;
     std::vector<int32_t> &acc = scratch.acc;
-    fill(acc, (size_t)nb * plane, 0);
+    fill(acc, (size_t)nb * plane + 1, 0);
     const int nr = (int)(hi - lo + 1);
     std::vector<double> srs(2 * (size_t)nr);
     std::vector<int32_t> cell(2 * (size_t)nr), boff(2 * (size_t)nr);
@@ -314,13 +396,14 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
             srs[(size_t)sg * nr + k] = (sg == 0 ? 1.0 : -1.0) * (double)(lo + k);
             boff[(size_t)sg * nr + k] = (int32_t)((size_t)bins[(size_t)k] * plane);
         }
+    thread_local std::vector<double> ux, uy;
+    unit_gradients(e.gx.data(), e.gy.data(), e.x.size(), ux, uy);
+    // a vote outside the plane goes to the slot after the last bin, never read
+    const int32_t trash = (int32_t)((size_t)nb * plane);
     for (size_t i = 0; i < e.x.size(); i++) {
-        const double gx = e.gx[i], gy = e.gy[i];
-        const double m =
-            std::sqrt((double)((int64_t)e.gx[i] * e.gx[i] + (int64_t)e.gy[i] * e.gy[i]));
-        vote_cells(srs.data(), 2 * nr, e.x[i], e.y[i], gx / m, gy / m, ws, hs, cell.data());
-        for (int k = 0; k < 2 * nr; k++)
-            if (cell[(size_t)k] >= 0) acc[(size_t)boff[(size_t)k] + (size_t)cell[(size_t)k]]++;
+        vote_cells(srs.data(), boff.data(), 2 * nr, e.x[i], e.y[i], ux[i], uy[i], ws, hs, trash,
+                   cell.data());
+        for (int k = 0; k < 2 * nr; k++) acc[(size_t)cell[(size_t)k]]++;
     }
     // 3 x 3 box sums per bin (zeros outside), then each bin plus the next;
     // per cell its best bin (first on ties). The box sum is linear: it is
@@ -333,29 +416,8 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     fill(bmax, plane, 0);
     for (int b = 0; b < nb; b++) {
         const int32_t *a = &acc[(size_t)b * plane];
-        if (b + 1 < nb) {
-            const int32_t *n = a + plane;
-            for (size_t c = 0; c < plane; c++) pair[c] = a[c] + n[c];
-        } else {
-            std::copy(a, a + plane, pair.begin());
-        }
-        for (int Y = 0; Y < hs; Y++) {
-            const int32_t *r = &pair[(size_t)Y * ws];
-            int32_t *hrow = &hsum[(size_t)(Y + 1) * ws];
-            hrow[0] = r[0] + (ws > 1 ? r[1] : 0);
-            for (int X = 1; X < ws - 1; X++) hrow[X] = r[X - 1] + r[X] + r[X + 1];
-            if (ws > 1) hrow[ws - 1] = r[ws - 2] + r[ws - 1];
-        }
-        for (int Y = 0; Y < hs; Y++) {
-            const int32_t *u = &hsum[(size_t)Y * ws], *c = u + ws, *d = c + ws;
-            int32_t *vm = &vmax[(size_t)Y * ws], *bm = &bmax[(size_t)Y * ws];
-            for (int X = 0; X < ws; X++) {
-                const int32_t v = u[X] + c[X] + d[X];
-                const bool gt = v > vm[X];
-                vm[X] = gt ? v : vm[X];
-                bm[X] = gt ? b : bm[X];
-            }
-        }
+        box_max(a, b + 1 < nb ? a + plane : nullptr, hs, ws, b, pair.data(), hsum.data(),
+                vmax.data(), bmax.data());
     }
     const double sup = 0.5 * (double)lo;
     long best = -1;
@@ -510,40 +572,56 @@ struct RayScores {
     }
 };
 
-// The median of v[0 .. n) (Python's: the mean of the two middle values); reorders v.
+// The median of v[0 .. n) (Python's: the mean of the two middle values of
+// the sorted values); reorders v. A selection, not a sort: the same values.
 double median_of(double *v, size_t n)
 {
-    std::sort(v, v + n);
-    return (v[(n - 1) / 2] + v[n / 2]) / 2.0;
+    const size_t hi = n / 2, lo = (n - 1) / 2;
+    std::nth_element(v, v + hi, v + n);
+    const double b = v[hi];
+    const double a = lo == hi ? b : *std::max_element(v, v + hi);
+    return (a + b) / 2.0;
 }
 
-// ratio > 0: only peaks of at least ratio times their ray's median step.
+// How many of q[0 .. n) are at most c. A loop of its own so that it vectorises.
+KERN2_CLONES long count_le(const double *q, long n, double c)
+{
+    long k = 0;
+    for (long j = 0; j < n; j++) k += q[j] <= c;
+    return k;
+}
+
+// ratio > 0: only peaks of at least ratio times their ray's median step. The
+// scores are an odd number (2 floor(2 win) + 1), so the median is the middle
+// one, m, and c >= ratio m holds exactly when at least (n + 1) / 2 scores s
+// have ratio s <= c (ratio s grows with s): counted, not sorted.
 void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
                double win, double thr, double ratio, RayEdges &re)
 {
     const int K = (int)dirs.size() / 2;
     thread_local RayScores rs;
-    thread_local std::vector<double> tmp;
+    thread_local std::vector<double> q;
     rs.setup(r, win);
     const long n = rs.n;
     re.ok.assign((size_t)K, 0);
     re.off.assign((size_t)K + 1, 0);
     re.cand.clear();
+    q.resize((size_t)n);
     for (int k = 0; k < K; k++) {
         re.off[(size_t)k] = (int)re.cand.size();
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
         re.ok[(size_t)k] = 1;
-        double t = thr;
-        bool by_median = false;
-        if (ratio > 0.0) {
-            tmp.assign(rs.score.begin(), rs.score.begin() + n);
-            t = ratio * median_of(tmp.data(), (size_t)n);
-            by_median = true;
-        }
+        bool scaled = false;
         for (long i = 1; i < n - 1; i++) {
             double pos;
             if (!rs.peak(i, thr, &pos)) continue;
-            if (by_median && !(rs.score[(size_t)i] >= t)) continue;
+            if (ratio > 0.0) {
+                if (!scaled) {
+                    for (long j = 0; j < n; j++) q[(size_t)j] = ratio * rs.score[(size_t)j];
+                    scaled = true;
+                }
+                if (count_le(q.data(), n, rs.score[(size_t)i]) < (n + 1) / 2) continue;
+            }
             re.cand.push_back(pos);
         }
     }
@@ -595,13 +673,6 @@ bool kasa(const std::vector<double> &x, const std::vector<double> &y,
     return true;
 }
 
-double median_abs(std::vector<double> v)
-{
-    std::sort(v.begin(), v.end());
-    const size_t n = v.size();
-    return (v[(n - 1) / 2] + v[n / 2]) / 2.0;
-}
-
 // Tukey-reweighted circle through the candidate nearest the current circle on
 // each ray (preprocess.py _fit_rays). Rays from (ox, oy).
 bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, double oy,
@@ -639,7 +710,8 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
         if (xs.size() < 8) return false;
         ares.resize(res.size());
         for (size_t i = 0; i < res.size(); i++) ares[i] = std::fabs(res[i]);
-        const double sigma = std::max(p->sigma_min_px, 1.4826 * median_abs(ares));
+        const double sigma =
+            std::max(p->sigma_min_px, 1.4826 * median_of(ares.data(), ares.size()));
         const double cut = p->tukey_c * sigma;
         wts.resize(res.size());
         for (size_t i = 0; i < res.size(); i++) {
@@ -655,20 +727,41 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
 }
 
 // Radius bin of each candidate for one centre shift: floor(((rho - dot) -
-// base) / step), Python's order; a loop of its own so that it vectorises.
-KERN2_CLONES void bin_indices(const double *rho, const double *ux, const double *uy, size_t n,
-                              double DX, double DY, double base, double step, int32_t *bi)
+// base) / step), Python's order, as the histogram slot it counts in: nb (a
+// slot not looked at) when it is outside 0 .. nb - 1 or when the previous
+// candidate is on the same ray (first[i] == 0) and in the same bin. A ray's
+// candidates come in increasing rho, so their bins never decrease: a ray
+// counts once per bin. inv: 1 / step when step is a power of two (then
+// multiplying by it is dividing, exactly), else 0. A loop of its own so that
+// it vectorises.
+KERN2_CLONES void bin_slots(const double *rho, const double *ux, const double *uy,
+                            const int32_t *first, size_t n, double DX, double DY, double base,
+                            double step, double inv, int32_t nb, int32_t *bi, int32_t *slot)
 {
     // values within a few hundred bins: floor32 is exact
-    for (size_t i = 0; i < n; i++) {
-        const double dot = DX * ux[i] + DY * uy[i];
-        bi[i] = floor32(((rho[i] - dot) - base) / step);
+    if (inv != 0.0)
+        for (size_t i = 0; i < n; i++) {
+            const double dot = DX * ux[i] + DY * uy[i];
+            bi[i] = floor32(((rho[i] - dot) - base) * inv);
+        }
+    else
+        for (size_t i = 0; i < n; i++) {
+            const double dot = DX * ux[i] + DY * uy[i];
+            bi[i] = floor32(((rho[i] - dot) - base) / step);
+        }
+    slot[0] = (bi[0] >= 0 && bi[0] < nb) ? bi[0] : nb;
+    for (size_t i = 1; i < n; i++) {
+        const int32_t b = bi[i], a = bi[i - 1];
+        const int32_t keep = (b >= 0) & (b < nb) & ((first[i] != 0) | (b != a));
+        slot[i] = keep ? b : nb;
     }
 }
 
 // The (shift, radius) most rays agree on (preprocess.py _consensus): for
 // each shift on the grid, the radius bin of each candidate, then the bin
-// reached by the most rays; first in grid order, then bin order, on ties.
+// reached by the most rays (a ray counts once per bin: on a busy backdrop a
+// few rays with many candidates would otherwise outvote the rim); first in
+// grid order, then bin order, on ties.
 bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, double win,
                double step, double *dx, double *dy, double *rr)
 {
@@ -676,34 +769,36 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     const long W = ifloor(win / step);
     const double base = r - ((double)W * step + win) - step;
     const long nb = ifloor(2.0 * ((double)W * step + win) / step) + 3;
-    std::vector<double> ux, uy, rho;
-    std::vector<int32_t> ray;
+    thread_local std::vector<double> ux, uy, rho;
+    thread_local std::vector<int32_t> first, bi, slot, hist;
+    ux.clear();
+    uy.clear();
+    rho.clear();
+    first.clear();
     for (int k = 0; k < K; k++) {
         if (!re.ok[(size_t)k]) continue;
         for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++) {
             ux.push_back(dirs[2 * (size_t)k]);
             uy.push_back(dirs[2 * (size_t)k + 1]);
             rho.push_back(re.cand[(size_t)i]);
-            ray.push_back(k);
+            first.push_back(i == re.off[(size_t)k]);
         }
     }
     const size_t n = rho.size();
     if (n == 0) return false;
+    int e;
+    const double inv = std::frexp(step, &e) == 0.5 ? 1.0 / step : 0.0;
     const long G = 2 * W + 1;
-    std::vector<int32_t> hist((size_t)nb), last((size_t)nb), bi(n);
+    bi.resize(n);
+    slot.resize(n);
+    hist.resize((size_t)nb + 1);
     long best = 0, bg = -1, bb = 0;
     for (long g = 0; g < G * G; g++) {
         const double DY = (double)(g / G - W) * step, DX = (double)(g % G - W) * step;
-        bin_indices(rho.data(), ux.data(), uy.data(), n, DX, DY, base, step, bi.data());
+        bin_slots(rho.data(), ux.data(), uy.data(), first.data(), n, DX, DY, base, step, inv,
+                  (int32_t)nb, bi.data(), slot.data());
         std::fill(hist.begin(), hist.end(), 0);
-        std::fill(last.begin(), last.end(), -1);
-        // a ray counts once per bin (candidates come in ray order): on a busy
-        // backdrop a few rays with many candidates would otherwise outvote the rim
-        for (size_t i = 0; i < n; i++)
-            if (bi[i] >= 0 && bi[i] < nb && last[(size_t)bi[i]] != ray[i]) {
-                last[(size_t)bi[i]] = ray[i];
-                hist[(size_t)bi[i]]++;
-            }
+        for (size_t i = 0; i < n; i++) hist[(size_t)slot[i]]++;
         for (long b = 0; b < nb; b++)
             if (hist[(size_t)b] > best) {
                 best = hist[(size_t)b];
@@ -756,7 +851,7 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
           Found *out)
 {
     double cx = c.cx, cy = c.cy, r = c.r;
-    RayEdges re;
+    thread_local RayEdges re;
     for (int ps = 0; ps < p->fine_passes; ps++) {
         // first pass: the shift grid covers the coarse centre's error, the rays reach farther
         const double win = ps == 0 ? p->consensus_cells * s + p->consensus_px
