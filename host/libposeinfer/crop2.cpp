@@ -346,6 +346,14 @@ KERN2_CLONES void box_max(const int32_t *a, const int32_t *next, int hs, int ws,
     }
 }
 
+// The largest of v[0 .. n), n >= 1. A loop of its own so that it vectorises.
+KERN2_CLONES int32_t max_of(const int32_t *v, size_t n)
+{
+    int32_t m = v[0];
+    for (size_t i = 1; i < n; i++) m = v[i] > m ? v[i] : m;
+    return m;
+}
+
 // Candidate circles, strongest first; *s_out the reduction.
 std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
                          double rmin, double rmax, int *s_out)
@@ -422,13 +430,9 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const double sup = 0.5 * (double)lo;
     long best = -1;
     for (int k = 0; k < p->candidates; k++) {
+        const int32_t v = max_of(vmax.data(), plane);
         size_t ci = 0;
-        int32_t v = vmax[0];
-        for (size_t c = 1; c < plane; c++)
-            if (vmax[c] > v) {
-                v = vmax[c];
-                ci = c;
-            }
+        while (vmax[ci] != v) ci++; // the first cell holding it
         if (v <= 0 || (best >= 0 && (double)v < p->cand_frac * (double)best)) break;
         if (best < 0) best = v;
         const long Yc = (long)(ci / ws), Xc = (long)(ci % ws);
@@ -474,13 +478,21 @@ inline bool sample(const Frame &f, double X, double Y, double v[3])
     return true;
 }
 
-// Bilinear interpolation, preprocess.py _sample's operations and order.
-KERN2_CLONES void bilinear(const int32_t *q00, const int32_t *q01, const int32_t *q10,
-                           const int32_t *q11, const double *fx, const double *fy, size_t n,
-                           double *v)
+static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "bilinear_words reads bytes as words");
+
+// Bilinear interpolation, preprocess.py _sample's operations and order, from
+// 32-bit words (little-endian): the channel's byte at bit sh of the words of
+// p00 and p10, at bit sh + 8 of those of p01 and p11 (read from two bytes
+// on, see RayScores::ray).
+KERN2_CLONES void bilinear_words(const uint32_t *w00, const uint32_t *w01, const uint32_t *w10,
+                                 const uint32_t *w11, int sh, const double *fx, const double *fy,
+                                 size_t n, double *v)
 {
     for (size_t j = 0; j < n; j++) {
-        const double p00 = q00[j], p01 = q01[j], p10 = q10[j], p11 = q11[j];
+        const double p00 = (int32_t)((w00[j] >> sh) & 255u),
+                     p01 = (int32_t)((w01[j] >> (sh + 8)) & 255u),
+                     p10 = (int32_t)((w10[j] >> sh) & 255u),
+                     p11 = (int32_t)((w11[j] >> (sh + 8)) & 255u);
         const double top = p00 + fx[j] * (p01 - p00);
         const double bot = p10 + fx[j] * (p11 - p10);
         v[j] = top + fy[j] * (bot - top);
@@ -513,7 +525,7 @@ struct RayEdges {
 struct RayScores {
     long n = 0;
     std::vector<double> rho, X, Y, FX, FY, v, score;
-    std::vector<int32_t> Q;
+    std::vector<uint32_t> W;
     void setup(double r, double win)
     {
         const long m = ifloor(win * 2.0);
@@ -524,7 +536,7 @@ struct RayScores {
         Y.resize(ns);
         FX.resize(ns);
         FY.resize(ns);
-        Q.resize(12 * ns);
+        W.resize(4 * ns);
         v.resize(3 * ns);
         score.resize((size_t)n);
         for (long j = 0; j < n + 2; j++) rho[(size_t)j] = r + ((double)(j - 1) - (double)m) * 0.5;
@@ -541,22 +553,22 @@ struct RayScores {
         // region [0, w - 1) x [0, h - 1) is convex)
         double p[3];
         if (!sample(f, X[0], Y[0], p) || !sample(f, X[ns - 1], Y[ns - 1], p)) return false;
-        // gather the corners (integers), then the arithmetic in a loop of its own
+        // gather the corners, one 32-bit word per pixel pair row (bytes of
+        // p00 at a[0..2], of p01 at a[3..5]: the words at a and a + 2, all
+        // within the two pixels), then the arithmetic in a loop of its own
         for (size_t j = 0; j < ns; j++) {
             const int32_t x0 = (int32_t)X[j], y0 = (int32_t)Y[j];
             FX[j] = X[j] - (double)x0;
             FY[j] = Y[j] - (double)y0;
             const uint8_t *a = f.p + (size_t)y0 * f.stride + 3 * (size_t)x0, *b = a + f.stride;
-            for (int c = 0; c < 3; c++) {
-                Q[(0 * 3 + c) * ns + j] = a[c];
-                Q[(1 * 3 + c) * ns + j] = a[3 + c];
-                Q[(2 * 3 + c) * ns + j] = b[c];
-                Q[(3 * 3 + c) * ns + j] = b[3 + c];
-            }
+            std::memcpy(&W[0 * ns + j], a, 4);
+            std::memcpy(&W[1 * ns + j], a + 2, 4);
+            std::memcpy(&W[2 * ns + j], b, 4);
+            std::memcpy(&W[3 * ns + j], b + 2, 4);
         }
         for (int c = 0; c < 3; c++)
-            bilinear(&Q[(0 * 3 + c) * ns], &Q[(1 * 3 + c) * ns], &Q[(2 * 3 + c) * ns],
-                     &Q[(3 * 3 + c) * ns], FX.data(), FY.data(), ns, &v[c * ns]);
+            bilinear_words(&W[0], &W[ns], &W[2 * ns], &W[3 * ns], 8 * c, FX.data(), FY.data(), ns,
+                           &v[c * ns]);
         step_score(v.data(), ns, score.data());
         return true;
     }
