@@ -422,7 +422,7 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
             return _eval(tex, img, us, vs, obs, R_, cx_ * s, cy_ * s, r_ * s, ff, True, gray)
         sse, sst, H, g = at(R, cx, cy, r)
         lam = DAMPING
-        for _ in range(steps):
+        for it in range(steps):
             Hd = H.copy()
             Hd[np.diag_indices(6)] *= 1.0 + lam
             d = _solve_spd(Hd, g)
@@ -431,6 +431,12 @@ def refine(frame, circle, R0, texture_pyr, camera_focal_px=None, iters=ITERS, st
             if ang > lim:
                 d = d * (lim / ang)
             cand = (rotvec_to_matrix(d[:3]) @ R, cx + d[3] / s, cy + d[4] / s, r + d[5] / s)
+            if lev > 0 and it + 1 == steps:
+                # a coarse level's last step is taken unchecked: the next level starts there and
+                # checks its own steps (the same accuracy for one evaluation less per level)
+                R, cx, cy, r = cand
+                total += 1
+                break
             sse_c, sst_c, H_c, g_c = at(*cand)
             if sse_c <= sse:
                 R, cx, cy, r = cand

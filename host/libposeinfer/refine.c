@@ -820,6 +820,17 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
                 for (int j = 0; j < 3; j++)
                     Rc[i][j] = M[i][0] * R[0][j] + M[i][1] * R[1][j] + M[i][2] * R[2][j];
             double cxc = cx + d[3] / s, cyc = cy + d[4] / s, rc_ = r + d[5] / s;
+            if (lev > 0 && it + 1 == rf_iters[li]) {
+                /* a coarse level's last step is taken without its value pass:
+                 * the next level starts there and checks its own steps
+                 * (training/refine.py) */
+                memcpy(R, Rc, sizeof R);
+                cx = cxc;
+                cy = cyc;
+                r = rc_;
+                total++;
+                break;
+            }
             evaluate(t, lev, w, uv, np, Rc, cxc * s, cyc * s, rc_ * s, ff, &fc);
             at_final = fc.sse <= fit.sse; /* w->pix holds the candidate's rendering */
             if (fc.sse <= fit.sse) {
