@@ -56,12 +56,14 @@ DEFAULTS_V2 = {
     # (block means); its Sobel edges (channel of the largest gradient, at least
     # edge_min, thinned across the edge) vote along their gradient direction
     # for (centre, radius bin about coarse_rbin * radius wide); the `candidates`
-    # best peaks with at least cand_frac of the best's votes go on
+    # best peaks with at least cand_frac of the best's votes go on, each one
+    # farther than cand_gap times the smallest radius from the ones before
     "coarse_size": 170,
     "coarse_rbin": 0.08,
     "edge_min": 24,
     "candidates": 4,
     "cand_frac": 0.35,
+    "cand_gap": 0.25,
     # fine stage, per candidate: `rays` rays from the centre; edge candidates
     # on each (local maxima of at least ray_edge_min of the colour step over
     # 1 px); first pass: the centre shift within +-w, w = consensus_cells * s
@@ -404,7 +406,7 @@ def _coarse(frame, p, rmin, rmax):
     vmax = work.max(axis=0)
     bmax = work.argmax(axis=0)
     cands = []
-    sup = 0.5 * lo
+    sup = p["cand_gap"] * lo
     yy, xx = np.indices((hs, ws))
     best = None
     start = [bins.index(b) + lo for b in range(nb)] + [hi + 1]
@@ -420,7 +422,7 @@ def _coarse(frame, p, rmin, rmax):
         if r_s is not None:
             off = (s - 1) / 2.0
             cands.append((Xc * s + off, Yc * s + off, r_s * s, v))
-        # suppress this peak's neighbourhood (centres closer than half the smallest radius)
+        # suppress this peak's neighbourhood (centres closer than cand_gap times the smallest radius)
         d2 = (xx - Xc) ** 2 + (yy - Yc) ** 2
         vmax[d2 <= sup * sup] = 0
     return cands, s

@@ -427,7 +427,7 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         box_max(a, b + 1 < nb ? a + plane : nullptr, hs, ws, b, pair.data(), hsum.data(),
                 vmax.data(), bmax.data());
     }
-    const double sup = 0.5 * (double)lo;
+    const double sup = p->cand_gap * (double)lo;
     long best = -1;
     for (int k = 0; k < p->candidates; k++) {
         const int32_t v = max_of(vmax.data(), plane);

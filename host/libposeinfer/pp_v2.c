@@ -46,6 +46,7 @@ static const struct key keys[] = {
     NUM(edge_min, 0, 100000),
     INT(candidates, 1, 64),
     NUM(cand_frac, 0, 1),
+    NUM(cand_gap, 0, 10),
     INT(rays, 8, 4096),
     NUM(ray_edge_min, 0, 1000),
     NUM(consensus_cells, 0, 64),

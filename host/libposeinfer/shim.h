@@ -35,7 +35,7 @@ typedef struct pp_params {
     /* sphere-crop-v2 (names as in the metadata) */
     double r_min_frac, r_max_frac, r_tol;
     int coarse_size, candidates, rays, fine_passes, irls_iters;
-    double coarse_rbin, edge_min, cand_frac, ray_edge_min;
+    double coarse_rbin, edge_min, cand_frac, cand_gap, ray_edge_min;
     double consensus_cells, consensus_px, consensus_step_px, consensus_reach, consensus_edge_ratio;
     double fine_window_px, fine_window_frac, tukey_c, sigma_min_px, inlier_px;
     double support_edge_min, support_ratio, support_flank_px;
@@ -84,6 +84,13 @@ int shim_decode(shim_mat *m, const void *buf, size_t len, long max_pixels, pi_fr
  * v2 "two spheres in frame (...)", "sphere cut by the frame edge (...)",
  * "frame is WxH, the camera file's calibration is for WxH". */
 int shim_preprocess(const pi_frame *f, const pp_params *p, float *out, pp_circle *c, char *err);
+
+/* shim_preprocess, and *seen: the frame the circle lies in, which refinement
+ * must read (docs/refine.md). With a camera that has distortion that is the
+ * undistorted frame (BGR), kept in `und` until its next use; otherwise (and
+ * when und is NULL) *f itself, not copied. */
+int shim_preprocess_seen(const pi_frame *f, const pp_params *p, float *out, pp_circle *c,
+                         shim_mat *und, pi_frame *seen, char *err);
 
 /* Write a frame to an image file (format from the extension). */
 int shim_save(const pi_frame *f, const char *path, char *err);
