@@ -44,6 +44,7 @@ struct pi_ctx {
     size_t nmeta;
     char **meta_keys, **meta_vals;
     shim_mat *mat;          /* decoded frame of the last pi_infer_file/memory */
+    shim_mat *und;          /* the last frame undistorted (a camera with distortion) */
     unsigned char *filebuf; /* reused read buffer */
     size_t filecap;
     size_t frame_bytes; /* size of the pixels held in mat */
@@ -442,7 +443,8 @@ static int make_io(pi_ctx *ctx, char *err)
                       ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &ctx->out_val[1]),
                   "CreateTensorWithDataAsOrtValue");
     ctx->mat = shim_mat_new();
-    if (!ctx->mat) {
+    ctx->und = shim_mat_new();
+    if (!ctx->mat || !ctx->und) {
         pi_seterr(err, "pi_open: out of memory");
         goto fail;
     }
@@ -544,6 +546,7 @@ static void release_io(pi_ctx *ctx)
     free(ctx->in_buf);
     free(ctx->filebuf);
     shim_mat_free(ctx->mat);
+    shim_mat_free(ctx->und);
     rf_work_free(ctx->rf_w);
 }
 
@@ -608,6 +611,7 @@ pi_ctx *pi_clone(pi_ctx *base, char *err)
     ctx->in_val = ctx->out_val[0] = ctx->out_val[1] = NULL;
     ctx->in_buf = NULL;
     ctx->mat = NULL;
+    ctx->und = NULL;
     ctx->filebuf = NULL;
     ctx->filecap = 0;
     ctx->rf_w = NULL;
@@ -660,13 +664,14 @@ const char *pi_metadata(const pi_ctx *ctx, const char *key)
 
 /* ---- inference ----------------------------------------------------------- */
 
-int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, pi_result *res,
-                        char *err)
+/* pi_preprocess_frame; *seen (when not NULL) is the frame the circle lies in,
+ * the undistorted one with a camera that has distortion (held in ctx->und). */
+static int preprocess(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, pi_result *res,
+                      pi_frame *seen, char *err)
 {
     pp_circle c;
-    pi_result tmp;
+    pi_frame tmpf;
     double t0 = pi_now_ms();
-    if (!res) res = &tmp;
     memset(res, 0, sizeof *res);
     if (!ctx || !frame || !frame->data) {
         pi_seterr(err, "pi_preprocess_frame: no frame");
@@ -685,12 +690,21 @@ int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n
     res->width = frame->width;
     res->height = frame->height;
     res->decode_ms = frame->decode_ms;
-    if (shim_preprocess(frame, &ctx->pp, out, &c, err) < 0) return -1;
+    if (shim_preprocess_seen(frame, &ctx->pp, out, &c, seen ? ctx->und : NULL, seen ? seen : &tmpf,
+                             err) < 0)
+        return -1;
     res->cx = c.cx;
     res->cy = c.cy;
     res->r = c.r;
     res->preprocess_ms = pi_now_ms() - t0;
     return 0;
+}
+
+int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, pi_result *res,
+                        char *err)
+{
+    pi_result tmp;
+    return preprocess(ctx, frame, out, n, res ? res : &tmp, NULL, err);
 }
 
 int pi_run_only(pi_ctx *ctx, char *err)
@@ -816,14 +830,15 @@ int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err
 {
     double t0 = pi_now_ms(), t1;
     pi_result tmp;
+    pi_frame seen; /* refinement reads the frame the localisation saw */
     if (!res) res = &tmp;
     if (!ctx) {
         memset(res, 0, sizeof *res);
         pi_seterr(err, "pi_infer_frame: no model");
         return -1;
     }
-    if (pi_preprocess_frame(ctx, frame, ctx->in_buf, (size_t)3 * ctx->pp.size * ctx->pp.size, res,
-                            err) < 0)
+    if (preprocess(ctx, frame, ctx->in_buf, (size_t)3 * ctx->pp.size * ctx->pp.size, res, &seen,
+                   err) < 0)
         return -1;
     t1 = pi_now_ms();
     if (run_model(ctx, err) < 0) return -1;
@@ -840,7 +855,7 @@ int pi_infer_frame(pi_ctx *ctx, const pi_frame *frame, pi_result *res, char *err
     res->has_rotmat = ctx->has_rotmat;
     if (ctx->has_rotmat)
         for (int i = 0; i < 9; i++) res->rotmat[i / 3][i % 3] = ctx->rot[i];
-    refine_result(ctx, frame, res);
+    refine_result(ctx, &seen, res);
     res->total_ms = res->decode_ms + (pi_now_ms() - t0);
     return 0;
 }

@@ -298,12 +298,12 @@ static void normalise(const unsigned char *small, size_t step, const pp_params *
     }
 }
 
-// sphere-crop-v2: undistort (camera with distortion), find the circle, crop.
+// sphere-crop-v2: undistort (camera with distortion) into *und, find the
+// circle, crop. *und is the caller's, so refinement can read the same image.
 static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp_circle *circ,
-                         char *err)
+                         cv::Mat *und, char *err)
 {
     const cv::Mat *bgr = &bgr0;
-    cv::Mat und;
     if (p->cam.set && (bgr0.cols != p->cam.width || bgr0.rows != p->cam.height)) {
         pi_seterr(err, "preprocess: frame is %dx%d, the camera file's calibration is for %dx%d",
                   bgr0.cols, bgr0.rows, p->cam.width, p->cam.height);
@@ -311,9 +311,9 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
     }
     if (p->undistort) {
         const crop2::UndistortMap &m = *static_cast<const crop2::UndistortMap *>(p->undistort);
-        und.create(bgr0.rows, bgr0.cols, CV_8UC3);
-        crop2::remap(bgr0.data, bgr0.step[0], m, und.data);
-        bgr = &und;
+        und->create(bgr0.rows, bgr0.cols, CV_8UC3);
+        crop2::remap(bgr0.data, bgr0.step[0], m, und->data);
+        bgr = und;
     }
     double cx, cy, r;
     char why[200];
@@ -359,7 +359,15 @@ extern "C" void shim_camera_free(pp_params *p)
 extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out, pp_circle *circ,
                                char *err)
 {
+    pi_frame seen;
+    return shim_preprocess_seen(f, p, out, circ, nullptr, &seen, err);
+}
+
+extern "C" int shim_preprocess_seen(const pi_frame *f, const pp_params *p, float *out,
+                                    pp_circle *circ, shim_mat *keep, pi_frame *seen, char *err)
+{
     try {
+        *seen = *f;
         const int h = f->height, w = f->width, S = p->size;
         if (!f->data || h < 8 || w < 8 ||
             (f->channels != 1 && f->channels != 3 && f->channels != 4)) {
@@ -375,7 +383,18 @@ extern "C" int shim_preprocess(const pi_frame *f, const pp_params *p, float *out
             cv::cvtColor(src, bgr, cv::COLOR_BGRA2BGR);
         else
             bgr = src;
-        if (p->version == 2) return preprocess_v2(bgr, p, out, circ, err);
+        if (p->version == 2) {
+            cv::Mat local;
+            cv::Mat *und = keep ? &keep->m : &local;
+            if (preprocess_v2(bgr, p, out, circ, und, err) < 0) return -1;
+            // the undistorted frame, when there is one: the circle lies in it
+            if (p->undistort && keep) {
+                const double decode_ms = f->decode_ms;
+                frame_from_mat(*und, seen);
+                seen->decode_ms = decode_ms;
+            }
+            return 0;
+        }
 
         // 1. Background: per-channel median of the border band.
         const int mn = std::min(h, w);
