@@ -16,8 +16,10 @@
 #include "kernels.h"
 #include "pi_err.h"
 
+// The vector loops below are compiled three ways, picked at run time; each
+// lane does the same IEEE operations, so every version gives the same bits.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define KERN2_CLONES __attribute__((target_clones("avx2", "default")))
+#define KERN2_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define KERN2_CLONES
 #endif
