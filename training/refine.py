@@ -527,11 +527,12 @@ class Refiner:
         return out
 
 
-def network_estimate(sess, meta, frame, camera=None):
-    """(undistorted frame, circle in continuous coordinates, network angles) for a BGR frame."""
+def network_estimate(sess, meta, frame, camera=None, model="the model"):
+    """(undistorted frame, circle in continuous coordinates, network angles) for a BGR frame;
+    `model` names the model in the error for incomplete preprocessing metadata."""
     from training import preprocess as pp
     from training.export import run_onnx
-    p = pp.params(meta.get("spherepose.preprocess"))
+    p = pp.params(meta.get("spherepose.preprocess"), model=str(model))
     if camera is not None and p["name"] != pp.NAME_V1:
         frame = pp.undistort(frame, camera)
     cx, cy, r, bg = pp.find_sphere(frame, p, camera)
@@ -620,7 +621,7 @@ def main(argv=None):
             cam = frame_camera(folder_cams, path, frame, camera)
             ref.focal = None if cam is None else camera_geometry(cam)[1]
             try:
-                frame, circle, euler = network_estimate(sess, meta, frame, cam)
+                frame, circle, euler = network_estimate(sess, meta, frame, cam, args.model)
             except NoSphere as e:
                 print(json.dumps({"file": str(path), "error": str(e)}), flush=True)
                 continue
