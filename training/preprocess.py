@@ -410,7 +410,14 @@ def _coarse(frame, p, rmin, rmax):
     yy, xx = np.indices((hs, ws))
     best = None
     start = [bins.index(b) + lo for b in range(nb)] + [hi + 1]
-    for _ in range(p["candidates"]):
+    # a peak whose circle would be refused as cut by the frame edge is refined but does not use
+    # up one of the `candidates` places: without a camera file the radius search is wide, and the
+    # texture's own arcs can add up to large circles mostly outside the frame that would take
+    # every place (at most 4 x candidates peaks in all)
+    taken = 0
+    for _ in range(4 * p["candidates"]):
+        if taken >= p["candidates"]:
+            break
         k = int(np.argmax(vmax))
         v = int(vmax.flat[k])
         if v <= 0 or (best is not None and v < p["cand_frac"] * best):
@@ -422,6 +429,8 @@ def _coarse(frame, p, rmin, rmax):
         if r_s is not None:
             off = (s - 1) / 2.0
             cands.append((Xc * s + off, Yc * s + off, r_s * s, v))
+        if r_s is None or rim_outside(Xc * s + off, Yc * s + off, r_s * s, h, w) <= p["max_cut"]:
+            taken += 1
         # suppress this peak's neighbourhood (centres closer than cand_gap times the smallest radius)
         d2 = (xx - Xc) ** 2 + (yy - Yc) ** 2
         vmax[d2 <= sup * sup] = 0

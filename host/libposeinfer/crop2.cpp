@@ -357,6 +357,8 @@ KERN2_CLONES int32_t max_of(const int32_t *v, size_t n)
 }
 
 // Candidate circles, strongest first; *s_out the reduction.
+double rim_outside(double cx, double cy, double r, int h, int w);
+
 std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
                          double rmin, double rmax, int *s_out)
 {
@@ -431,7 +433,9 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     }
     const double sup = p->cand_gap * (double)lo;
     long best = -1;
-    for (int k = 0; k < p->candidates; k++) {
+    // a peak whose circle would be refused as cut by the frame edge is refined but does not use
+    // up one of the `candidates` places (training/preprocess.py says why); 4 x candidates at most
+    for (int k = 0, taken = 0; k < 4 * p->candidates && taken < p->candidates; k++) {
         const int32_t v = max_of(vmax.data(), plane);
         size_t ci = 0;
         while (vmax[ci] != v) ci++; // the first cell holding it
@@ -441,10 +445,13 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         const int b = bmax[ci];
         const long r_s =
             radius_vote(e, Xc, Yc, start[(size_t)b], start[(size_t)std::min(b + 2, nb)] - 1);
+        bool cut = false;
         if (r_s >= 0) {
             const double off = (s - 1) / 2.0;
             out.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
+            cut = rim_outside(out.back().cx, out.back().cy, out.back().r, h, w) > p->max_cut;
         }
+        if (!cut) taken++;
         const long R = ifloor(sup) + 1;
         for (long Y = std::max(0L, Yc - R); Y <= std::min((long)hs - 1, Yc + R); Y++)
             for (long X = std::max(0L, Xc - R); X <= std::min((long)ws - 1, Xc + R); X++) {
