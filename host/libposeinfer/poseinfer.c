@@ -17,6 +17,7 @@
 
 #include "internal.h"
 #include "json.h"
+#include "confidence.h"
 #include "refine.h"
 #include "shim.h"
 

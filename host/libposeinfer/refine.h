@@ -8,7 +8,7 @@
 #include <stdint.h>
 
 #define RF_META_TEXTURE    "spherepose.texture_png"
-#define RF_META_CONFIDENCE "spherepose.confidence"
+#define RF_META_CONFIDENCE "spherepose.confidence" /* confidence.h reads it */
 
 /* The parameters of training/refine.py (tests/host/unit/test_refine.c reads
  * them back from the Python file). */
@@ -72,27 +72,6 @@ void rf_work_free(rf_work *w);
 int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
               double r, const double R0[3][3], double focal_px, int steps, rf_out *out, char *err,
               size_t errlen);
-
-/* Confidence: thresholds (metadata spherepose.confidence) and the model's
- * ranges (spherepose.ranges). */
-typedef struct rf_conf {
-    double residual_max;           /* refined residual above this: not confident */
-    double residual_max_unrefined; /* the same for the residual at the network's pose */
-    double range_margin_deg;       /* a pose this far beyond the ranges: not confident */
-    double colour_min;   /* a colour frame's colour ratio below this: not confident (0: off) */
-    double ranges[3][2]; /* x, y, z: [lo, hi] degrees */
-} rf_conf;
-
-void rf_conf_defaults(rf_conf *c);
-
-/* Parse either JSON text (NULL: keep the defaults). -1 with err naming the key. */
-int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err,
-                  size_t errlen);
-
-/* 1 when confident, else 0 with the reason in note (training/refine.py judge);
- * colour: rf_out.colour (NaN: no colour check). */
-int rf_judge(const rf_conf *c, double residual, double colour, const double euler[3], int refined,
-             char *note, size_t notelen);
 
 /* Conventions' conversions (docs/conventions.md). */
 void rf_euler_to_matrix(const double euler_deg[3], double R[3][3]);

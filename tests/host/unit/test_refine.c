@@ -14,6 +14,7 @@
 
 #include <cmocka.h>
 
+#include "confidence.h"
 #include "refine.h"
 
 #ifndef M_PI
