@@ -8,7 +8,9 @@
  *
  * Prints one JSON object: {"ortrun": [...], "decode": [...], "full": [...],
  * "full_decode": [...], "full_preprocess": [...], "full_infer": [...],
- * "full_refine": [...], "refused": [{"file": ..., "error": ...}]}.
+ * "full_refine": [...], "full_locate": [...] (of full_preprocess, finding the
+ * sphere alone; 0 for a sphere-crop-v1 model), "refused": [{"file": ...,
+ * "error": ...}]}.
  *
  * A frame the preprocessing refuses (no sphere, two spheres, cut by the
  * frame edge: an error "preprocess: ...") is listed under "refused" once and
@@ -53,7 +55,7 @@ int main(int argc, char **argv)
     char *refused = NULL;          /* per image: the preprocessing refused it */
     char(*why)[PI_ERR_LEN] = NULL; /* its error */
     double *t_run = NULL, *t_dec = NULL, *t_full = NULL, *t_fd = NULL, *t_fp = NULL, *t_fi = NULL,
-           *t_fr = NULL;
+           *t_fr = NULL, *t_fl = NULL;
 
     const char *camera_file = NULL;
     if (argc > 2 && strcmp(argv[1], "--camera-file") == 0) { /* a sphere-crop-v2 model's camera */
@@ -85,9 +87,11 @@ int main(int argc, char **argv)
     t_fp = calloc(n, sizeof(double));
     t_fi = calloc(n, sizeof(double));
     t_fr = calloc(n, sizeof(double));
+    t_fl = calloc(n, sizeof(double));
     refused = calloc((size_t)nimg, 1);
     why = calloc((size_t)nimg, sizeof *why);
-    if (!t_run || !t_dec || !t_full || !t_fd || !t_fp || !t_fi || !t_fr || !refused || !why)
+    if (!t_run || !t_dec || !t_full || !t_fd || !t_fp || !t_fi || !t_fr || !t_fl || !refused ||
+        !why)
         goto fail;
 
     /* interleaved, so that a noisy neighbour hits all three alike; m frames timed */
@@ -113,6 +117,7 @@ int main(int argc, char **argv)
         t_fp[k] = r.preprocess_ms;
         t_fi[k] = r.infer_ms;
         t_fr[k] = r.refine_ms;
+        t_fl[k] = r.locate_ms;
         t0 = pi_now_ms();
         if (pi_run_only(ctx, err) < 0) goto fail_err; /* the tensor is ready from the line above */
         t_run[k] = pi_now_ms() - t0;
@@ -125,6 +130,7 @@ int main(int argc, char **argv)
     print_array("full_preprocess", t_fp, m, 0);
     print_array("full_infer", t_fi, m, 0);
     print_array("full_refine", t_fr, m, 0);
+    print_array("full_locate", t_fl, m, 0);
     printf("\"refused\": [");
     for (int i = 0, first = 1; i < nimg; i++) {
         if (!refused[i]) continue;
@@ -148,6 +154,7 @@ fail:
     free(t_fp);
     free(t_fi);
     free(t_fr);
+    free(t_fl);
     free(refused);
     free(why);
     pi_close(ctx);

@@ -67,6 +67,7 @@ typedef struct pi_result {
     double net[3];       /* the network's angles */
     double rcx, rcy, rr; /* refined circle, continuous pixel coordinates */
     double refine_ms;
+    double locate_ms; /* of preprocess_ms, finding the sphere alone (sphere-crop-v2; 0 for v1) */
 } pi_result;
 
 /* A raw 8-bit frame. channels: 1 (gray), 3 (BGR) or 4 (BGRA); stride in bytes

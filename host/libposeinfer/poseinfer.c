@@ -670,7 +670,7 @@ const char *pi_metadata(const pi_ctx *ctx, const char *key)
 static int preprocess(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, pi_result *res,
                       pi_frame *seen, char *err)
 {
-    pp_circle c;
+    pp_circle c = {0};
     pi_frame tmpf;
     double t0 = pi_now_ms();
     memset(res, 0, sizeof *res);
@@ -697,6 +697,7 @@ static int preprocess(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, 
     res->cx = c.cx;
     res->cy = c.cy;
     res->r = c.r;
+    res->locate_ms = c.locate_ms;
     res->preprocess_ms = pi_now_ms() - t0;
     return 0;
 }

@@ -317,11 +317,13 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
     }
     double cx, cy, r;
     char why[200];
+    const double t0 = pi_now_ms();
     if (crop2::find_sphere(bgr->data, bgr->cols, bgr->rows, bgr->step[0], p, &cx, &cy, &r, why,
                            sizeof why) < 0) {
         seterr(err, "preprocess", why);
         return -1;
     }
+    circ->locate_ms = pi_now_ms() - t0;
     if (r * p->margin * 2 > 65536) {
         seterr(err, "preprocess", "sphere too large");
         return -1;

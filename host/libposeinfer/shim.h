@@ -49,6 +49,7 @@ typedef struct pp_params {
 typedef struct pp_circle {
     double cx, cy, r;
     double bg[3];
+    double locate_ms; /* sphere-crop-v2: time finding the circle alone (pi_now_ms), else 0 */
 } pp_circle;
 
 /* The v2 parameters from the metadata object (pp_v2.c): every key present,

@@ -140,6 +140,8 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
         sb_json_num(s, r->decode_ms, 3);
         sb_puts(s, ", \"preprocess_ms\": ");
         sb_json_num(s, r->preprocess_ms, 3);
+        sb_puts(s, ", \"locate_ms\": ");
+        sb_json_num(s, r->locate_ms, 3);
         sb_puts(s, ", \"infer_ms\": ");
         sb_json_num(s, r->infer_ms, 3);
         sb_puts(s, ", \"refine_ms\": ");

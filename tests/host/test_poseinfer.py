@@ -200,8 +200,9 @@ def test_size64_model(run, models, frames):
     r = run("--model", models["size64"], "--timings", frames["good.png"])
     assert r.rc == 0
     line = r.lines[0]
-    for k in ("decode_ms", "preprocess_ms", "infer_ms", "cx", "cy", "r"):
+    for k in ("decode_ms", "preprocess_ms", "locate_ms", "infer_ms", "cx", "cy", "r"):
         assert k in line
+    assert 0 <= line["locate_ms"] <= line["preprocess_ms"]
     assert abs(line["cx"] - 320) < 2 and abs(line["cy"] - 256) < 2 and abs(line["r"] - 133) < 3
 
 
