@@ -36,6 +36,7 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 
+from machine import machine  # noqa: E402
 from raycast import camera, families, frames  # noqa: E402
 
 
@@ -342,13 +343,9 @@ def plot(rows_by_family, path):
     plt.close(fig)
 
 
-def machine():
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, timeout=10).stdout
-        model = next((l.split(":", 1)[1].strip() for l in out.splitlines() if l.startswith("Model name")), "?")
-    except OSError:
-        model = platform.processor() or "?"
-    return f"{model}, {os.cpu_count()} CPUs, {platform.system()} {platform.release()}"
+def machine_line():
+    m = machine()
+    return f"{m['cpu']}, {m['nproc']} CPUs, {platform.system()} {platform.release()}"
 
 
 def sha256(path):
@@ -447,7 +444,7 @@ def main(args):
         "# Evaluation on independently rendered frames (bench/realscene.py)", "",
         f"- command: `{command.strip()}`",
         f"- date: {datetime.datetime.now(datetime.timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}; "
-        f"machine: {machine()}; {elapsed:.0f} s in all ({t_render:.0f} s rendering)",
+        f"machine: {machine_line()}; {elapsed:.0f} s in all ({t_render:.0f} s rendering)",
         f"- model: `{os.path.relpath(args.model, ROOT)}` (sha256 {model_sha[:12]}…)",
         f"- runtime: `{cmds[0] if cmds else ''}` ({runtime})",
         f"- frames: {args.n} per family, seed {args.seed}, camera "
