@@ -226,6 +226,24 @@ def test_help(run):
     assert "usage: poseinfer" in r.stdout and "--serve" in r.stdout
 
 
+def test_help_defaults_match_the_documented_table(run):
+    """Each default --help states is the one docs/poseinfer.md's key table gives
+    (tests/host/unit/test_config_doc.c holds that table to config.c)."""
+    import re
+    table = {}
+    for line in (ROOT / "docs" / "poseinfer.md").read_text().splitlines():
+        m = re.match(r"\| `(\w+)` \| (`([^`]*)`|none) \|", line)
+        if m:
+            table[m.group(1)] = m.group(3) if m.group(3) is not None else "none"
+    text = " ".join(run("--help").stdout.split())  # the help wraps lines
+    said = {key: value.split(":")[0] for value, key in re.findall(r"\(default ([^)]+)\) \[(\w+)\]", text)}
+    said.update({key: value for key, value in re.findall(r"\b(\w+) \((0\d+)\)", text)})
+    assert len(said) >= 10, said
+    for key, value in said.items():
+        assert key in table, f"--help gives a default for {key}, docs/poseinfer.md's table has no such key"
+        assert table[key] == value, f"{key}: --help says {value}, docs/poseinfer.md says {table[key]}"
+
+
 def test_config_file(run, models, frames, tmp_path):
     cfg = tmp_path / "poseinfer.conf"
     cfg.write_text(f"# test\nmodel = {models['good']}\ntimings = yes\n\nthreads=1\n")
