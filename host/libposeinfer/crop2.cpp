@@ -34,6 +34,7 @@ namespace
 // these sizes cost more in page faults than the work itself.
 struct Scratch {
     std::vector<int32_t> red, row, M, GX, GY, V, D, acc, box, hsum, vmax, bmax;
+    std::vector<int32_t> keep;
 };
 thread_local Scratch scratch;
 
@@ -92,10 +93,10 @@ KERN2_CLONES void block_sums(const uint8_t *p, size_t stride, int s, size_t nbyt
 
 // q[i] = (v[i] + half) / n as (v[i] + half) * mul >> sh (mul, sh checked exact
 // for every possible sum), for a row of reduced pixels.
-KERN2_CLONES void block_means(const uint32_t *v, size_t n, uint32_t half, uint32_t mul, int sh,
+KERN2_CLONES void block_means(const uint16_t *v, size_t n, uint32_t half, uint32_t mul, int sh,
                               int32_t *q)
 {
-    for (size_t i = 0; i < n; i++) q[i] = (int32_t)(((v[i] + half) * mul) >> sh);
+    for (size_t i = 0; i < n; i++) q[i] = (int32_t)((((uint32_t)v[i] + half) * mul) >> sh);
 }
 
 // A multiplier and shift with (v * mul) >> sh == v / n for every v in 0 ..
@@ -134,14 +135,21 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
     }
     if (div_sh >= 0) {
         thread_local std::vector<uint16_t> col, hsum;
-        thread_local std::vector<uint32_t> pick;
+        thread_local std::vector<uint16_t> pick;
         col.resize(nbytes);
-        hsum.resize(nbytes);
-        pick.resize(nout);
+        hsum.resize(nbytes + 1);
+        pick.resize(nout + 1);
         for (int Y = 0; Y < *hs; Y++) {
             block_sums(bgr + (size_t)Y * s * stride, stride, s, nbytes, col.data(), hsum.data());
-            for (int X = 0; X < *ws; X++)
-                for (int c = 0; c < 3; c++) pick[(size_t)X * 3 + c] = hsum[(size_t)X * 3 * s + c];
+            // a block's three sums as one 8-byte move (the fourth value is
+            // overwritten by the next block's, or lands in the spare one)
+            const uint16_t *hs16 = hsum.data();
+            uint16_t *pk = pick.data();
+            for (int X = 0; X < *ws; X++) {
+                uint64_t t;
+                std::memcpy(&t, hs16 + (size_t)X * 3 * s, 8);
+                std::memcpy(pk + (size_t)X * 3, &t, 8);
+            }
             block_means(pick.data(), nout, half, div_mul, div_sh, &red[(size_t)Y * nout]);
         }
         return;
@@ -170,8 +178,11 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
     }
 }
 
+// n edges; the vectors keep their size between frames (resizing them would
+// clear them, a cost of its own)
 struct Edges {
     std::vector<int32_t> x, y, gx, gy;
+    size_t n = 0;
 };
 
 // Sobel per channel on the reduced image, the channel of the largest
@@ -207,12 +218,39 @@ KERN2_CLONES void gradient_row(const int32_t *r0, const int32_t *r1, const int32
     }
 }
 
+// One row of edges: keep[j] = 1 where the magnitude^2 m (mc[j], mc the
+// row in the zero-bordered plane of row length P) is at least tmin and
+// not below either neighbour across the edge (direction in four classes,
+// integer tests), else 0. A loop of its own so that it vectorises.
+KERN2_CLONES void nms_row(const int32_t *mc, long P, const int32_t *gx, const int32_t *gy, int gw,
+                          int32_t tmin, int32_t *keep)
+{
+    const int32_t *up = mc - P, *dn = mc + P;
+    for (int j = 0; j < gw; j++) {
+        const int32_t m = mc[j], gxv = gx[j], gyv = gy[j];
+        const int32_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
+        const bool horiz = 5 * ay <= 2 * ax, vert = 5 * ax <= 2 * ay;
+        const bool same = (gxv > 0) == (gyv > 0);
+        // the neighbours: left/right, up/down, up-left/down-right, up-right/down-left
+        const int32_t dga = same ? up[j - 1] : up[j + 1], dgb = same ? dn[j + 1] : dn[j - 1];
+        const int32_t a = horiz ? mc[j - 1] : (vert ? up[j] : dga);
+        const int32_t b = horiz ? mc[j + 1] : (vert ? dn[j] : dgb);
+        keep[j] = (int32_t)((m >= tmin) & (m >= a) & (m >= b));
+    }
+}
+
 void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edges &e)
 {
     const int gh = hs - 2, gw = ws - 2;
     const size_t P = (size_t)gw + 2;
-    std::vector<int32_t> &M = scratch.M; // padded magnitude^2
-    fill(M, (size_t)(gh + 2) * P, 0);
+    std::vector<int32_t> &M = scratch.M; // padded magnitude^2: a border of zeros
+    if (M.size() < (size_t)(gh + 2) * P) M.resize((size_t)(gh + 2) * P);
+    std::fill(M.begin(), M.begin() + (long)P, 0);
+    std::fill(M.begin() + (long)((gh + 1) * P), M.begin() + (long)((gh + 2) * P), 0);
+    for (int i = 1; i <= gh; i++) {
+        M[(size_t)i * P] = 0;
+        M[(size_t)i * P + P - 1] = 0;
+    }
     std::vector<int32_t> &GX = scratch.GX, &GY = scratch.GY, &V = scratch.V, &D = scratch.D;
     const size_t nb = (size_t)ws * 3;
     GX.resize((size_t)gh * gw);
@@ -235,29 +273,31 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
         e.gy.resize(cap);
     }
     size_t ne = 0;
-    const long Pl = (long)P;
+    // m >= emin2 (a double) as an integer test: m >= ceil(emin2); an emin2
+    // no magnitude reaches (or NaN): no edge
+    if (!(emin2 <= 2147483647.0)) return;
+    const int32_t tmin = emin2 <= -2147483648.0 ? INT32_MIN : (int32_t)-std::floor(-emin2);
+    std::vector<int32_t> &keep = scratch.keep;
+    keep.resize((size_t)gw + 4);
+    std::fill(keep.begin() + gw, keep.end(), 0);
     for (int i = 0; i < gh; i++) {
-        const int32_t *mrow = &M[(size_t)(i + 1) * P + 1];
-        for (int j = 0; j < gw; j++) {
-            if (!((double)mrow[j] >= emin2)) continue;
-            const size_t c = (size_t)(i + 1) * P + (j + 1);
-            const int32_t m = M[c];
-            const int32_t gxv = GX[(size_t)i * gw + j], gyv = GY[(size_t)i * gw + j];
-            const int32_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
-            const long diag = (gxv > 0) == (gyv > 0) ? Pl + 1 : Pl - 1;
-            const long off = 5 * ay <= 2 * ax ? 1 : (5 * ax <= 2 * ay ? Pl : diag);
-            const int32_t a = M[(size_t)((long)c - off)], b = M[(size_t)((long)c + off)];
-            e.x[ne] = j + 1;
-            e.y[ne] = i + 1;
-            e.gx[ne] = gxv;
-            e.gy[ne] = gyv;
-            ne += (m >= a) & (m >= b);
+        const int32_t *gxr = &GX[(size_t)i * gw], *gyr = &GY[(size_t)i * gw];
+        nms_row(&M[(size_t)(i + 1) * P + 1], (long)P, gxr, gyr, gw, tmin, keep.data());
+        // the kept ones, four flags at a time
+        for (int j = 0; j < gw; j += 4) {
+            if (!(keep[(size_t)j] | keep[(size_t)j + 1] | keep[(size_t)j + 2] |
+                  keep[(size_t)j + 3]))
+                continue;
+            for (int jj = j; jj < j + 4 && jj < gw; jj++) {
+                e.x[ne] = jj + 1;
+                e.y[ne] = i + 1;
+                e.gx[ne] = gxr[jj];
+                e.gy[ne] = gyr[jj];
+                ne += keep[(size_t)jj];
+            }
         }
     }
-    e.x.resize(ne);
-    e.y.resize(ne);
-    e.gx.resize(ne);
-    e.gy.resize(ne);
+    e.n = ne;
 }
 
 // Radius (reduced pixels) about centre (Xc, Yc) between lo and hi: histogram
@@ -267,7 +307,7 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
 {
     std::vector<long> hist((size_t)(hi - lo + 3), 0); // padded by one bin each side
     bool any = false;
-    for (size_t i = 0; i < e.x.size(); i++) {
+    for (size_t i = 0; i < e.n; i++) {
         const int64_t dx = e.x[i] - Xc, dy = e.y[i] - Yc, gx = e.gx[i], gy = e.gy[i];
         const int64_t d2 = dx * dx + dy * dy, dot = dx * gx + dy * gy, m2 = gx * gx + gy * gy;
         if (!(100 * dot * dot >= 81 * d2 * m2)) continue;
@@ -320,31 +360,43 @@ KERN2_CLONES void unit_gradients(const int32_t *gx, const int32_t *gy, size_t n,
 
 // One radius bin of the coarse accumulator: the 3 x 3 box sum (zeros
 // outside) of it plus the next bin (when there is one), and per cell the
-// largest so far (vmax) and its bin (bmax, the first on ties). hsum has
-// (hs + 2) ws cells, its first and last rows zero. Whole-plane loops, so
-// that they vectorise.
-KERN2_CLONES void box_max(const int32_t *a, const int32_t *next, int hs, int ws, int32_t b,
-                          int32_t *pair, int32_t *hsum, int32_t *vmax, int32_t *bmax)
+// largest so far (vmax) and its bin (bmax, the first on ties). Row by row:
+// the horizontal 3-sums of three rows in h3 (3 ws cells, a ring), the
+// vertical sum of a row once the row below it is summed. The bin's plane
+// is cleared after (its last use: the next frame finds it zero). Row loops,
+// so that they vectorise.
+KERN2_CLONES void box_max(int32_t *a, const int32_t *next, int hs, int ws, int32_t b, int32_t *pair,
+                          int32_t *h3, int32_t *vmax, int32_t *bmax)
 {
-    const size_t plane = (size_t)hs * ws;
-    if (next)
-        for (size_t c = 0; c < plane; c++) pair[c] = a[c] + next[c];
-    else
-        for (size_t c = 0; c < plane; c++) pair[c] = a[c];
-    int32_t *h = hsum + ws;
-    for (size_t c = 1; c + 1 < plane; c++) h[c] = pair[c - 1] + pair[c] + pair[c + 1];
-    // each row's ends: no neighbour beyond the row
-    for (int Y = 0; Y < hs; Y++) {
-        const int32_t *r = pair + (size_t)Y * ws;
-        int32_t *hr = h + (size_t)Y * ws;
-        hr[0] = r[0] + (ws > 1 ? r[1] : 0);
-        if (ws > 1) hr[ws - 1] = r[ws - 2] + r[ws - 1];
-    }
-    for (size_t c = 0; c < plane; c++) {
-        const int32_t v = hsum[c] + hsum[c + ws] + hsum[c + 2 * (size_t)ws];
-        const int32_t gt = v > vmax[c];
-        vmax[c] = gt ? v : vmax[c];
-        bmax[c] = gt ? b : bmax[c];
+    const size_t W = (size_t)ws;
+    for (int Y = 0; Y <= hs; Y++) {
+        if (Y < hs) {
+            // the horizontal 3-sums of row Y (no neighbour beyond the row)
+            int32_t *ar = a + (size_t)Y * W, *hr = h3 + (size_t)(Y % 3) * W;
+            if (next) {
+                const int32_t *nr = next + (size_t)Y * W;
+                for (size_t c = 0; c < W; c++) pair[c] = ar[c] + nr[c];
+            } else {
+                for (size_t c = 0; c < W; c++) pair[c] = ar[c];
+            }
+            for (size_t c = 1; c + 1 < W; c++) hr[c] = pair[c - 1] + pair[c] + pair[c + 1];
+            hr[0] = pair[0] + (ws > 1 ? pair[1] : 0);
+            if (ws > 1) hr[W - 1] = pair[W - 2] + pair[W - 1];
+            std::fill(ar, ar + W, 0);
+        }
+        // row Yo = Y - 1: the rows above and below it (zero beyond the plane)
+        const int Yo = Y - 1;
+        if (Yo < 0) continue;
+        const int32_t *hm = h3 + (size_t)(Yo % 3) * W;
+        int32_t *vm = vmax + (size_t)Yo * W, *bm = bmax + (size_t)Yo * W;
+        const int32_t *hu = Yo > 0 ? h3 + (size_t)((Yo - 1) % 3) * W : nullptr;
+        const int32_t *hd = Yo + 1 < hs ? h3 + (size_t)((Yo + 1) % 3) * W : nullptr;
+        for (size_t c = 0; c < W; c++) {
+            const int32_t v = (hu ? hu[c] : 0) + hm[c] + (hd ? hd[c] : 0);
+            const int32_t gt = v > vm[c];
+            vm[c] = gt ? v : vm[c];
+            bm[c] = gt ? b : bm[c];
+        }
     }
 }
 
@@ -370,12 +422,9 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     reduce(bgr, stride, w, h, s, red, &hs, &ws);
     if (hs < 8 || ws < 8) return out;
     thread_local Edges e;
-    e.x.clear();
-    e.y.clear();
-    e.gx.clear();
-    e.gy.clear();
+    e.n = 0;
     edges(red, hs, ws, p->edge_min, e);
-    if (e.x.empty()) return out;
+    if (e.n == 0) return out;
     const long lo = std::max(1L, ifloor(rmin / s));
     const long hi = ifloor(rmax / s) + 1;
     if (hi < lo) return out;
@@ -398,8 +447,11 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     }
     const int nb = bins.back() + 1;
     const size_t plane = (size_t)hs * ws;
+    // the accumulator is left zero after each frame (box_max clears it)
     std::vector<int32_t> &acc = scratch.acc;
-    fill(acc, (size_t)nb * plane + 1, 0);
+    if (acc.size() < (size_t)nb * plane + 1) {
+        acc.assign((size_t)nb * plane + 1, 0);
+    }
     const int nr = (int)(hi - lo + 1);
     std::vector<double> srs(2 * (size_t)nr);
     std::vector<int32_t> cell(2 * (size_t)nr), boff(2 * (size_t)nr);
@@ -409,10 +461,10 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
             boff[(size_t)sg * nr + k] = (int32_t)((size_t)bins[(size_t)k] * plane);
         }
     thread_local std::vector<double> ux, uy;
-    unit_gradients(e.gx.data(), e.gy.data(), e.x.size(), ux, uy);
+    unit_gradients(e.gx.data(), e.gy.data(), e.n, ux, uy);
     // a vote outside the plane goes to the slot after the last bin, never read
     const int32_t trash = (int32_t)((size_t)nb * plane);
-    for (size_t i = 0; i < e.x.size(); i++) {
+    for (size_t i = 0; i < e.n; i++) {
         vote_cells(srs.data(), boff.data(), 2 * nr, e.x[i], e.y[i], ux[i], uy[i], ws, hs, trash,
                    cell.data());
         for (int k = 0; k < 2 * nr; k++) acc[(size_t)cell[(size_t)k]]++;
@@ -422,15 +474,16 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     // taken once of each bin plus the next.
     std::vector<int32_t> &pair = scratch.box, &hsum = scratch.hsum, &vmax = scratch.vmax,
                          &bmax = scratch.bmax;
-    pair.resize(plane);
-    fill(hsum, (size_t)(hs + 2) * ws, 0); // horizontal 3-sums, a zero row each side
+    pair.resize((size_t)ws);
+    hsum.resize(3 * (size_t)ws);
     fill(vmax, plane, -1);
     fill(bmax, plane, 0);
     for (int b = 0; b < nb; b++) {
-        const int32_t *a = &acc[(size_t)b * plane];
+        int32_t *a = &acc[(size_t)b * plane];
         box_max(a, b + 1 < nb ? a + plane : nullptr, hs, ws, b, pair.data(), hsum.data(),
                 vmax.data(), bmax.data());
     }
+    acc[(size_t)nb * plane] = 0; // the slot of the votes outside
     const double sup = p->cand_gap * (double)lo;
     long best = -1;
     // a peak whose circle would be refused as cut by the frame edge is refined but does not use
@@ -508,6 +561,31 @@ KERN2_CLONES void bilinear_words(const uint32_t *w00, const uint32_t *w01, const
     }
 }
 
+// pf[i] = 1 where score i (1 .. n - 2) is a local maximum of at least thr
+// (at least its left neighbour, above its right one), else 0. A loop of
+// its own so that it vectorises.
+KERN2_CLONES void peak_flags(const double *score, long n, double thr, uint8_t *pf)
+{
+    for (long i = 1; i < n - 1; i++) {
+        const double c = score[i];
+        pf[i] = (uint8_t)((c >= thr) & (c >= score[i - 1]) & (c > score[i + 1]));
+    }
+}
+
+// Per sample inside the frame: the fractions of X, Y and the byte offset
+// of the top-left corner (truncation is the floor there). A loop of its own
+// so that it vectorises.
+KERN2_CLONES void ray_corners(const double *X, const double *Y, size_t ns, int64_t stride,
+                              double *fx, double *fy, int64_t *off)
+{
+    for (size_t j = 0; j < ns; j++) {
+        const int32_t x0 = (int32_t)X[j], y0 = (int32_t)Y[j];
+        fx[j] = X[j] - (double)x0;
+        fy[j] = Y[j] - (double)y0;
+        off[j] = (int64_t)y0 * stride + 3 * (int64_t)x0;
+    }
+}
+
 // The colour step at samples 1 .. ns - 2: the largest channel difference of
 // the samples either side (planar v: channel c at v[c * ns]).
 KERN2_CLONES void step_score(const double *v, size_t ns, double *score)
@@ -535,6 +613,9 @@ struct RayScores {
     long n = 0;
     std::vector<double> rho, X, Y, FX, FY, v, score;
     std::vector<uint32_t> W;
+    std::vector<int64_t> O;
+    std::vector<uint8_t> pf;
+    std::vector<int32_t> pk;
     void setup(double r, double win)
     {
         const long m = ifloor(win * 2.0);
@@ -546,6 +627,7 @@ struct RayScores {
         FX.resize(ns);
         FY.resize(ns);
         W.resize(4 * ns);
+        O.resize(ns);
         v.resize(3 * ns);
         score.resize((size_t)n);
         for (long j = 0; j < n + 2; j++) rho[(size_t)j] = r + ((double)(j - 1) - (double)m) * 0.5;
@@ -565,15 +647,16 @@ struct RayScores {
         // gather the corners, one 32-bit word per pixel pair row (bytes of
         // p00 at a[0..2], of p01 at a[3..5]: the words at a and a + 2, all
         // within the two pixels), then the arithmetic in a loop of its own
+        ray_corners(X.data(), Y.data(), ns, (int64_t)f.stride, FX.data(), FY.data(), O.data());
+        const uint8_t *fp = f.p;
+        const int64_t st = (int64_t)f.stride;
+        uint32_t *w0 = &W[0], *w1 = w0 + ns, *w2 = w1 + ns, *w3 = w2 + ns;
         for (size_t j = 0; j < ns; j++) {
-            const int32_t x0 = (int32_t)X[j], y0 = (int32_t)Y[j];
-            FX[j] = X[j] - (double)x0;
-            FY[j] = Y[j] - (double)y0;
-            const uint8_t *a = f.p + (size_t)y0 * f.stride + 3 * (size_t)x0, *b = a + f.stride;
-            std::memcpy(&W[0 * ns + j], a, 4);
-            std::memcpy(&W[1 * ns + j], a + 2, 4);
-            std::memcpy(&W[2 * ns + j], b, 4);
-            std::memcpy(&W[3 * ns + j], b + 2, 4);
+            const uint8_t *a = fp + O[j], *b = a + st;
+            std::memcpy(&w0[j], a, 4);
+            std::memcpy(&w1[j], a + 2, 4);
+            std::memcpy(&w2[j], b, 4);
+            std::memcpy(&w3[j], b + 2, 4);
         }
         for (int c = 0; c < 3; c++)
             bilinear_words(&W[0], &W[ns], &W[2 * ns], &W[3 * ns], 8 * c, FX.data(), FY.data(), ns,
@@ -581,15 +664,27 @@ struct RayScores {
         step_score(v.data(), ns, score.data());
         return true;
     }
-    // local maximum of at least thr at score i (1 .. n - 2); *pos its sub-pixel distance
-    bool peak(long i, double thr, double *pos) const
+    // the local maxima of at least thr among scores 1 .. n - 2, in order:
+    // their indexes into pk[0 .. return value)
+    long peaks(double thr)
+    {
+        pf.resize((size_t)n);
+        pk.resize((size_t)n);
+        peak_flags(score.data(), n, thr, pf.data());
+        long m = 0;
+        for (long i = 1; i < n - 1; i++) {
+            pk[(size_t)m] = (int32_t)i;
+            m += pf[(size_t)i];
+        }
+        return m;
+    }
+    // the sub-pixel distance of the peak at score i (parabola)
+    double peak_pos(long i) const
     {
         const double c = score[(size_t)i], a = score[(size_t)i - 1], b = score[(size_t)i + 1];
-        if (!(c >= thr && c >= a && c > b)) return false;
         const double den = a - 2.0 * c + b;
         const double o = den < 0.0 ? 0.5 * (a - b) / den : 0.0;
-        *pos = rho[(size_t)i + 1] + o * 0.5;
-        return true;
+        return rho[(size_t)i + 1] + o * 0.5;
     }
 };
 
@@ -633,9 +728,10 @@ void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, doubl
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
         re.ok[(size_t)k] = 1;
         bool scaled = false;
-        for (long i = 1; i < n - 1; i++) {
-            double pos;
-            if (!rs.peak(i, thr, &pos)) continue;
+        const long np = rs.peaks(thr);
+        for (long m = 0; m < np; m++) {
+            const long i = rs.pk[(size_t)m];
+            const double pos = rs.peak_pos(i);
             if (ratio > 0.0) {
                 if (!scaled) {
                     for (long j = 0; j < n; j++) q[(size_t)j] = ratio * rs.score[(size_t)j];
@@ -812,20 +908,33 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     const long G = 2 * W + 1;
     bi.resize(n);
     slot.resize(n);
-    hist.resize((size_t)nb + 1);
+    // four histograms, counted in turn and added: one count does not wait
+    // for the previous one to the same bin
+    const size_t hn = (size_t)nb + 1;
+    hist.resize(4 * hn);
+    int32_t *h0 = hist.data(), *h1 = h0 + hn, *h2 = h1 + hn, *h3 = h2 + hn;
     long best = 0, bg = -1, bb = 0;
     for (long g = 0; g < G * G; g++) {
         const double DY = (double)(g / G - W) * step, DX = (double)(g % G - W) * step;
         bin_slots(rho.data(), ux.data(), uy.data(), first.data(), n, DX, DY, base, step, inv,
                   (int32_t)nb, bi.data(), slot.data());
         std::fill(hist.begin(), hist.end(), 0);
-        for (size_t i = 0; i < n; i++) hist[(size_t)slot[i]]++;
-        for (long b = 0; b < nb; b++)
-            if (hist[(size_t)b] > best) {
-                best = hist[(size_t)b];
+        size_t i = 0;
+        for (; i + 4 <= n; i += 4) {
+            h0[slot[i]]++;
+            h1[slot[i + 1]]++;
+            h2[slot[i + 2]]++;
+            h3[slot[i + 3]]++;
+        }
+        for (; i < n; i++) h0[slot[i]]++;
+        for (long b = 0; b < nb; b++) {
+            const long v = (long)h0[b] + h1[b] + h2[b] + h3[b];
+            if (v > best) {
+                best = v;
                 bg = g;
                 bb = b;
             }
+        }
     }
     if (bg < 0) return false;
     *dx = (double)(bg % G - W) * step;
@@ -844,25 +953,48 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     const int K = (int)dirs.size() / 2;
     thread_local RayScores rs;
     thread_local std::vector<double> fl;
+    thread_local std::vector<long> fi;
+    thread_local std::vector<double> near;
+    const double ratio = p->support_ratio;
     rs.setup(r, p->support_flank_px);
     const long n = rs.n;
+    // the flank's scores (the same places on every ray); none: no ray has
+    // support, whichever stay inside the frame
+    fi.clear();
+    for (long i = 0; i < n; i++)
+        if (std::fabs(rs.rho[(size_t)i + 1] - r) >= 2.0 * p->inlier_px) fi.push_back(i);
+    if (fi.empty()) return 0.0;
     int cnt = 0;
     for (int k = 0; k < K; k++) {
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
-        fl.clear();
-        for (long i = 0; i < n; i++)
-            if (std::fabs(rs.rho[(size_t)i + 1] - r) >= 2.0 * p->inlier_px)
-                fl.push_back(rs.score[(size_t)i]);
-        if (fl.empty()) return 0.0;
-        const double t = p->support_ratio * median_of(fl.data(), fl.size());
-        for (long i = 1; i < n - 1; i++) {
-            double pos;
-            if (rs.peak(i, p->support_edge_min, &pos) && std::fabs(pos - r) <= p->inlier_px &&
-                rs.score[(size_t)i] >= t) {
-                cnt++;
-                break;
-            }
+        // the peaks near the circle first: the median only for a ray with one
+        near.clear();
+        const long np = rs.peaks(p->support_edge_min);
+        for (long m = 0; m < np; m++) {
+            const long i = rs.pk[(size_t)m];
+            if (std::fabs(rs.peak_pos(i) - r) <= p->inlier_px) near.push_back(rs.score[(size_t)i]);
         }
+        if (near.empty()) continue;
+        double cmax = near[0];
+        for (const double c : near) cmax = std::max(cmax, c);
+        fl.resize(fi.size());
+        double lo = rs.score[(size_t)fi[0]], hi = lo;
+        for (size_t j = 0; j < fi.size(); j++) {
+            const double v = rs.score[(size_t)fi[j]];
+            fl[j] = v;
+            lo = std::min(lo, v);
+            hi = std::max(hi, v);
+        }
+        // the median lies within [lo, hi], and so (rounding is monotonic) the
+        // threshold within [ratio lo, ratio hi]: the median only when the
+        // strongest peak lies between
+        if (ratio >= 0.0 && cmax >= ratio * hi) {
+            cnt++;
+            continue;
+        }
+        if (ratio >= 0.0 && cmax < ratio * lo) continue;
+        const double t = ratio * median_of(fl.data(), fl.size());
+        if (cmax >= t) cnt++;
     }
     return (double)cnt / K;
 }
