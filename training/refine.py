@@ -41,7 +41,15 @@ REF_D_OVER_R = 12.5   # the reference camera's distance / sphere radius (250 mm 
 LUMA = (0.114, 0.587, 0.299)  # B, G, R weights of a gray frame's texture (ITU-R BT.601, as OpenCV)
 FD_STEP = 1e-3        # finite-difference step (pixels) of the tests' check of d n / d (cx, cy, r)
 
-DEFAULT_CONFIDENCE = {"residual_max": 0.25, "range_margin_deg": 2.0, "colour_min": 0.0}
+DEFAULT_CONFIDENCE = {"residual_max": 0.25, "range_margin_deg": 2.0, "colour_min": 0.0,
+                      "converge_max_deg": 0.3}
+
+# The convergence check (confidence; docs/refine.md): an answer whose start was far off is refined
+# again from itself, since one pass of ITERS steps does not reach the minimum from several degrees
+# away; it is confident only when a pass moves it at most converge_max_deg.
+CHECK_PASSES = 4      # refinement passes at most, the first included
+CHECK_PX = 2.0        # checked when the first pass moved the circle's centre or radius farther ...
+CHECK_DEG = 2.5       # ... or the pose farther from the network's than this, and every gray frame
 
 
 # ---- texture --------------------------------------------------------------------------------
@@ -473,13 +481,58 @@ def confidence_params(meta_value=None):
     return p
 
 
-def judge(residual, euler, ranges, params, colour=None):
-    """(confident, note): the residual against its threshold, the colour ratio against its
-    least (colour frames only), then the pose against the model's ranges (widened by
-    range_margin_deg)."""
-    if not residual <= params["residual_max"]:
-        return False, (f"poor alignment (residual {residual:.3f} > {params['residual_max']:.3f}): "
+def rotation_deg(Ra, Rb):
+    """The angle of the rotation from Rb to Ra, degrees."""
+    Ra, Rb = np.asarray(Ra, np.float64), np.asarray(Rb, np.float64)
+    # |Ra - Rb| (Frobenius) = 2 sqrt(2) sin(t / 2): exact near 0, where acos of the trace is not
+    return math.degrees(2.0 * math.asin(min(1.0, float(np.linalg.norm(Ra - Rb)) / (2.0 * math.sqrt(2.0)))))
+
+
+def refine_checked(frame, circle, R0, texture_pyr, camera_focal_px=None, converge_max_deg=None,
+                   passes=CHECK_PASSES, force=False):
+    """refine, and the convergence check: (Result, moved, passes run). A gray frame, or an answer
+    whose first pass moved the circle more than CHECK_PX pixels or the pose more than CHECK_DEG
+    from R0, is refined again from itself until a pass moves the pose at most converge_max_deg
+    (at most `passes` passes in all); moved is that last pass's rotation (degrees), None when
+    the answer was not checked (force: every answer is). The Result is the last pass's."""
+    stop = DEFAULT_CONFIDENCE["converge_max_deg"] if converge_max_deg is None else converge_max_deg
+    res = refine(frame, circle, R0, texture_pyr, camera_focal_px)
+    shift = max(math.hypot(res.circle[0] - circle[0], res.circle[1] - circle[1]),
+                abs(res.circle[2] - circle[2]))
+    if not force and res.colour is not None and shift <= CHECK_PX and rotation_deg(res.R, R0) <= CHECK_DEG:
+        return res, None, 1
+    moved, n = None, 1
+    while n < passes:
+        try:
+            nxt = refine(frame, res.circle, res.R, texture_pyr, camera_focal_px)
+        except ValueError:      # the circle ran off (another texture): not converged
+            return res, math.inf, n
+        if not all(math.isfinite(v) for v in nxt.circle):
+            return res, math.inf, n
+        moved, res, n = rotation_deg(nxt.R, res.R), nxt, n + 1
+        if moved <= stop:
+            break
+    return res, moved, n
+
+
+def judge(residual, euler, ranges, params, colour=None, moved=None, refined=True):
+    """(confident, note): the residual against its threshold (residual_max_unrefined for the
+    network's pose; a refined gray frame's, colour None, residual_max_gray when the model has
+    one), the convergence check's last pass against converge_max_deg (checked answers only), the
+    colour ratio against its least (colour frames only), then the pose against the model's
+    ranges (widened by range_margin_deg)."""
+    rmax = params["residual_max"]
+    if not refined:
+        rmax = params.get("residual_max_unrefined", rmax)
+    elif colour is None and params.get("residual_max_gray", 0) > 0:
+        rmax = params["residual_max_gray"]
+    if not residual <= rmax:
+        return False, (f"poor alignment (residual {residual:.3f} > {rmax:.3f}): "
                        f"another texture, a pose outside the model's ranges, or a wrong sphere")
+    cmax = params.get("converge_max_deg", DEFAULT_CONFIDENCE["converge_max_deg"])
+    if moved is not None and not moved <= cmax:
+        return False, (f"not converged (a further pass moved it {moved:.2f} deg > {cmax:.2f}): the "
+                       f"start was too far off (a mono camera, a circle found off the sphere)")
     cmin = params.get("colour_min", 0.0)
     if colour is not None and cmin > 0 and not colour >= cmin:
         return False, (f"colours do not match (colour ratio {colour:.2f} < {cmin:.2f}): "
@@ -513,13 +566,15 @@ class Refiner:
         R0 = euler_to_matrix(euler)
         if self.texture is None:
             return {"x": euler[0], "y": euler[1], "z": euler[2]}
-        iters = ITERS if refine_pose else (0,) * LEVELS
-        res = refine(frame, circle, R0, self.texture, self.focal, iters=iters)
-        key = "residual_max" if refine_pose else "residual_max_unrefined"
-        conf = dict(self.conf, residual_max=self.conf.get(key, self.conf["residual_max"]))
-        ok, note = judge(res.residual, res.euler, self.ranges, conf, res.colour)
+        moved = None
+        if refine_pose:
+            res, moved, _ = refine_checked(frame, circle, R0, self.texture, self.focal,
+                                           self.conf.get("converge_max_deg"))
+        else:
+            res = refine(frame, circle, R0, self.texture, self.focal, iters=(0,) * LEVELS)
+        ok, note = judge(res.residual, res.euler, self.ranges, self.conf, res.colour, moved, refine_pose)
         out = {"x": res.euler[0], "y": res.euler[1], "z": res.euler[2], "confident": ok,
-               "residual": res.residual, "colour": res.colour}
+               "residual": res.residual, "colour": res.colour, "moved": moved}
         if note:
             out["note"] = note
         if refine_pose:
@@ -552,18 +607,53 @@ def _frames(paths):
             yield p
 
 
-def calibrate(residuals_refined, residuals_unrefined, factor=3.0, floor=0.02, colours=()):
+def settle_deg(frame, circle, R0, texture_pyr, camera_focal_px=None, first=None):
+    """What calibration measures of the convergence check on one frame: (the least rotation a
+    pass makes, over passes 2 to CHECK_PASSES + 1, and the last pass's residual). A converged
+    answer is a fixed point of a pass or swings between two poses (a coarse level's minimum a
+    little off the finest one's): that swing is what a right answer's check may show. first:
+    the first pass's Result, when already refined."""
+    res = first or refine(frame, circle, R0, texture_pyr, camera_focal_px)
+    least = math.inf
+    for _ in range(CHECK_PASSES):
+        try:
+            nxt = refine(frame, res.circle, res.R, texture_pyr, camera_focal_px)
+        except ValueError:
+            return math.inf, 1.0
+        if not all(math.isfinite(v) for v in nxt.circle):
+            return math.inf, 1.0
+        least, res = min(least, rotation_deg(nxt.R, res.R)), nxt
+    return least, res.residual
+
+
+def calibrate(residuals_refined, residuals_unrefined, factor=3.0, floor=0.02, colours=(), settles=(),
+              settle_floor=0.1, gray_factor=1.0):
     """Thresholds from in-range held-out frames: `factor` times their 99th percentile
     (at least `floor`); the colour ratio's least: their 1st percentile over `factor` (colour
-    frames only; none: no colour check)."""
+    frames only; none: no colour check); converge_max_deg: `factor` times the 99th percentile of
+    settle_deg's rotations (at least `settle_floor`), of the frames whose residual then passes
+    residual_max (settles: (rotation, residual) pairs, None for a frame not measured; none: the
+    default); residual_max_gray: `gray_factor` times the 99th percentile of the settled residual
+    of the gray frames (colour None) that settled within converge_max_deg (none: residual_max
+    holds for gray frames too)."""
     q = lambda a, p=0.99: float(np.quantile(np.asarray(a, np.float64), p))
     out = {"residual_max": round(max(floor, factor * q(residuals_refined)), 4),
            "residual_max_unrefined": round(max(floor, factor * q(residuals_unrefined)), 4),
            "range_margin_deg": DEFAULT_CONFIDENCE["range_margin_deg"],
            "calibrated_on": len(residuals_refined)}
-    colours = [c for c in colours if c is not None]
-    if colours:
-        out["colour_min"] = round(q(colours, 0.01) / factor, 4)
+    colours = list(colours)
+    coloured = [c for c in colours if c is not None]
+    if coloured:
+        out["colour_min"] = round(q(coloured, 0.01) / factor, 4)
+    settles = list(settles)
+    moves = [d[0] for d in settles if d is not None and d[1] <= out["residual_max"]]
+    if moves:
+        out["converge_max_deg"] = round(max(settle_floor, factor * q(moves)), 3)
+        cmax = out["converge_max_deg"]
+        gray = [d[1] for d, c in zip(settles, colours) if d is not None and c is None and d[0] <= cmax]
+        if gray:
+            out["residual_max_gray"] = round(max(floor, gray_factor * q(gray)), 4)
+            out["calibrated_on_gray"] = len(gray)
     return out
 
 
@@ -589,7 +679,13 @@ def main(argv=None):
     c.add_argument("--model", required=True)
     c.add_argument("--camera-file", default=None, help="as for run")
     c.add_argument("--factor", type=float, default=3.0, help="residual threshold = factor x 99th percentile; "
-                   "least colour ratio = 1st percentile / factor")
+                   "least colour ratio = 1st percentile / factor; converge_max_deg = factor x 99th "
+                   "percentile of a converged answer's swing")
+    c.add_argument("--gray-factor", type=float, default=1.0, help="residual_max_gray = gray-factor x 99th "
+                   "percentile of the gray frames' settled residual (a mono camera sees the texture and its "
+                   "colourless version a few hundredths apart)")
+    c.add_argument("--keys", default=None, help="comma-separated: write only these thresholds, over the "
+                   "model's others (e.g. converge_max_deg,residual_max_gray)")
     c.add_argument("--write", action="store_true", help="store the thresholds in the model file")
     c.add_argument("frames", nargs="+", help="in-range frames the model was not trained on")
     args = ap.parse_args(argv)
@@ -629,14 +725,24 @@ def main(argv=None):
                 out = {"file": str(path), **ref(frame, circle, euler, not args.no_refine)}
                 print(json.dumps(out), flush=True)
             else:
-                a = ref(frame, circle, euler, True)
-                rows.append((a["residual"], ref(frame, circle, euler, False)["residual"], a["colour"]))
+                # the first pass's residual and colour ratio (unchecked), and the check's swing
+                one = refine(frame, circle, euler_to_matrix(euler), ref.texture, ref.focal)
+                rows.append((one.residual, ref(frame, circle, euler, False)["residual"], one.colour,
+                             settle_deg(frame, circle, None, ref.texture, ref.focal, one)))
         if args.cmd == "calibrate":
             if len(rows) < 20:
                 raise ValueError(f"calibrate: {len(rows)} frames; give at least 20")
-            conf = calibrate([a for a, _, _ in rows], [b for _, b, _ in rows], args.factor,
-                             colours=[c for _, _, c in rows])
-            print(json.dumps(conf))
+            conf = calibrate([a for a, _, _, _ in rows], [b for _, b, _, _ in rows], args.factor,
+                             colours=[c for _, _, c, _ in rows], settles=[d for _, _, _, d in rows],
+                             gray_factor=args.gray_factor)
+            if args.keys:
+                keys = [k.strip() for k in args.keys.split(",") if k.strip()]
+                missing = [k for k in keys if k not in conf]
+                if missing:
+                    raise ValueError(f"calibrate: no {', '.join(missing)} from these frames")
+                old = json.loads(meta.get(META_CONFIDENCE) or "{}")
+                conf = dict(old, **{k: conf[k] for k in keys})
+            print(json.dumps(conf, sort_keys=True))
             if args.write:
                 set_metadata(args.model, {META_CONFIDENCE: json.dumps(conf, sort_keys=True)})
         return 0

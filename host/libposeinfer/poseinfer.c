@@ -783,7 +783,7 @@ fail:
 static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
 {
     char rerr[sizeof res->note];
-    double t0 = pi_now_ms(), R0[3][3];
+    double t0 = pi_now_ms(), R0[3][3], moved;
     rf_out o;
     res->net[0] = res->x;
     res->net[1] = res->y;
@@ -805,8 +805,9 @@ static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
                        frame->stride ? frame->stride : (size_t)frame->width * frame->channels};
         /* the localisation's circle is in OpenCV's pixel coordinates (centres
          * at integers); refinement works in the conventions' (centres at +0.5) */
-        if (rf_refine(ctx->rf_tex, ctx->rf_w, &fi, res->cx + 0.5, res->cy + 0.5, res->r + 0.5, R0,
-                      ctx->rf_focal, ctx->rf_on, &o, rerr, sizeof rerr) < 0) {
+        if (rf_refine_checked(ctx->rf_tex, ctx->rf_w, &fi, res->cx + 0.5, res->cy + 0.5,
+                              res->r + 0.5, R0, ctx->rf_focal, ctx->rf_on,
+                              ctx->rf_conf.converge_max_deg, &o, &moved, rerr, sizeof rerr) < 0) {
             snprintf(res->note, sizeof res->note, "%s", rerr);
             res->refine_ms = pi_now_ms() - t0;
             return;
@@ -823,8 +824,9 @@ static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
         res->rr = o.r;
         if (res->has_rotmat) memcpy(res->rotmat, o.R, sizeof o.R);
     }
-    res->confident = rf_judge(&ctx->rf_conf, o.residual, o.colour, ctx->rf_on ? o.euler : res->net,
-                              ctx->rf_on, res->note, sizeof res->note);
+    res->confident =
+        rf_judge(&ctx->rf_conf, o.residual, o.colour, moved, ctx->rf_on ? o.euler : res->net,
+                 ctx->rf_on, res->note, sizeof res->note);
     res->refine_ms = pi_now_ms() - t0;
 }
 

@@ -195,6 +195,35 @@ def test_gray_frame_sees_the_texture_as_luma(texture, pyramid):
         assert geodesic_deg(out.R, R_true) < 0.1 and out.residual < 0.03, out
 
 
+def test_rotation_deg_is_exact_near_zero():
+    A, B = rf.euler_to_matrix((3, -7, 12)), rf.euler_to_matrix((3, -7, 17))
+    assert rf.rotation_deg(A, B) == pytest.approx(5.0, abs=1e-9)      # about the world's z
+    assert rf.rotation_deg(A, rf.rotvec_to_matrix(np.array([0, 1e-7, 0])) @ A) == pytest.approx(
+        math.degrees(1e-7), rel=1e-6)
+
+
+def test_convergence_check(texture, pyramid):
+    """A mono camera's frame with the start 7 degrees off (the shipped network's error on gray
+    input): one pass stops short of the minimum; the check refines again until a pass moves the
+    pose at most converge_max_deg. A colour frame from a near start is not checked."""
+    euler = (8.0, -14.0, 21.0)
+    R_true = rf.euler_to_matrix(euler)
+    colour = synth_frame(texture, euler, cx=322.4, cy=251.3)
+    gray = cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)
+    R0 = rf.euler_to_matrix((4.0, -10.0, 17.0))
+    one = rf.refine(gray, (322.4, 251.3, R_REF), R0, pyramid, F_REF)
+    out, moved, passes = rf.refine_checked(gray, (322.4, 251.3, R_REF), R0, pyramid, F_REF, 0.3)
+    assert geodesic_deg(one.R, R_true) > 0.3 and passes > 1
+    assert moved <= 0.3 and geodesic_deg(out.R, R_true) < 0.1, (moved, out)
+    near = rf.rotvec_to_matrix(np.radians([0.4, -0.3, 0.2])) @ R_true
+    out, moved, passes = rf.refine_checked(colour, (322.9, 250.9, R_REF), near, pyramid, F_REF, 0.3)
+    assert moved is None and passes == 1
+    assert (out.R == rf.refine(colour, (322.9, 250.9, R_REF), near, pyramid, F_REF).R).all()
+    # the circle found 6 px off: checked, and right
+    out, moved, _ = rf.refine_checked(colour, (328.4, 249.3, R_REF * 1.03), near, pyramid, F_REF, 0.3)
+    assert moved is not None and moved <= 0.3 and geodesic_deg(out.R, R_true) < 0.1
+
+
 def test_no_steps_measures_the_residual_at_the_given_pose(texture, pyramid):
     euler = (0.0, 0.0, 0.0)
     frame = synth_frame(texture, euler)
@@ -216,6 +245,19 @@ def test_judge():
     ok, note = rf.judge(0.01, (0, 45.04, 0), ranges, p)
     assert not ok and note == "outside the model's ranges (y = 45.0 not in [-30, 30])"
     assert not rf.judge(float("nan"), (0, 0, 0), ranges, p)[0]
+    # the convergence check: only a checked answer (moved not None)
+    assert p["converge_max_deg"] == rf.DEFAULT_CONFIDENCE["converge_max_deg"] == 0.3
+    assert rf.judge(0.01, (0, 0, 0), ranges, p, 0.9, 0.29) == (True, None)
+    ok, note = rf.judge(0.01, (0, 0, 0), ranges, p, None, 0.31)
+    assert not ok and note.startswith("not converged (a further pass moved it 0.31 deg > 0.30)")
+    assert rf.judge(0.01, (0, 0, 0), ranges, rf.confidence_params('{"converge_max_deg": 0.5}'), None, 0.45)[0]
+    # a refined gray frame (colour None) has its own residual threshold when the model has one
+    g = rf.confidence_params('{"residual_max": 0.12, "residual_max_gray": 0.045, "residual_max_unrefined": 0.3}')
+    assert rf.judge(0.05, (0, 0, 0), ranges, g, 0.9) == (True, None)
+    ok, note = rf.judge(0.05, (0, 0, 0), ranges, g, None)
+    assert not ok and note.startswith("poor alignment (residual 0.050 > 0.045)")
+    assert rf.judge(0.05, (0, 0, 0), ranges, g, None, refined=False) == (True, None)
+    assert not rf.judge(0.31, (0, 0, 0), ranges, g, 0.9, refined=False)[0]
 
 
 def test_calibrate_takes_a_multiple_of_the_99th_percentile():
@@ -224,6 +266,17 @@ def test_calibrate_takes_a_multiple_of_the_99th_percentile():
     assert rf.calibrate([0.0] * 30, [0.0] * 30)["residual_max"] == 0.02
     assert "colour_min" not in rf.calibrate([0.0] * 30, [0.0] * 30, colours=[None] * 30)
     assert rf.calibrate([0.0] * 30, [0.0] * 30, 2.0, colours=np.linspace(0.8, 1.2, 101))["colour_min"] == 0.402
+    # the convergence check's swing and a gray frame's residual: frames whose residual passes only
+    # (residual_max 0.1 here; the 0.5 one and the gray one that swings 5 deg do not count)
+    swing = [(m, 0.01) for m in np.linspace(0, 0.2, 101)] + [(5.0, 0.5)]
+    c = rf.calibrate([0.05] * 102, [0.1] * 102, 2.0, settles=swing)
+    assert c["converge_max_deg"] == pytest.approx(round(2 * np.quantile(np.linspace(0, 0.2, 101), 0.99), 3))
+    assert "residual_max_gray" not in c
+    gray = [(0.0, r) for r in np.linspace(0, 0.04, 101)] + [(5.0, 0.01)]
+    c = rf.calibrate([0.05] * 204, [0.1] * 204, 2.0, colours=[1.0] * 102 + [None] * 102, settles=swing + gray)
+    assert c["residual_max_gray"] == pytest.approx(round(np.quantile(np.linspace(0, 0.04, 101), 0.99), 4))
+    assert c["calibrated_on_gray"] == 101
+    assert "converge_max_deg" not in rf.calibrate([0.0] * 30, [0.0] * 30)
 
 
 def test_c_parameters_match(tmp_path):
@@ -248,7 +301,7 @@ def test_c_parameters_match(tmp_path):
 
 def test_c_agrees_with_python(tmp_path, texture):
     """poseinfer (C) and training/refine.py refine the same network angles to within 0.005 deg,
-    and give the same residual and verdict."""
+    and give the same residual and verdict (a gray frame's through the convergence check)."""
     exe = Path(os.environ.get("POSEINFER", REPO / "host" / "build" / "poseinfer"))
     model_src = REPO / "training" / "models" / "Texture_3_color.onnx"
     if not exe.exists():
@@ -264,6 +317,9 @@ def test_c_agrees_with_python(tmp_path, texture):
         p = tmp_path / f"f{i}.png"
         cv2.imwrite(str(p), synth_frame(bgr_texture(width=2048), euler, cx=318.2 + 3 * i, cy=259.7 - 2 * i, ss=2))
         frames.append(p)
+    # a mono camera's frame: always through the convergence check
+    cv2.imwrite(str(tmp_path / "gray.png"), cv2.cvtColor(cv2.imread(str(frames[1])), cv2.COLOR_BGR2GRAY))
+    frames.append(tmp_path / "gray.png")
     cv2.imwrite(str(tmp_path / "other.png"), synth_frame(bgr_texture(2, "color", 2048), (0, 5, 5), ss=2))
     frames.append(tmp_path / "other.png")
     proc = subprocess.run([str(exe), "--model", str(model), "--timings"] + [str(p) for p in frames],
@@ -284,4 +340,6 @@ def test_c_agrees_with_python(tmp_path, texture):
         assert geodesic_deg(R_c, R_p) < 0.005, (p.name, c, py)
         assert c["residual"] == pytest.approx(py["residual"], abs=2e-5)
         assert c["confident"] == py["confident"]
+        if p.name == "gray.png":
+            assert py["colour"] is None and py["moved"] is not None, py
     assert lines[-1]["confident"] is False and "note" in lines[-1]

@@ -1,4 +1,4 @@
-/* Unit tests: refine.c (render-and-compare refinement, confidence rules).
+/* Unit tests: refine.c (render-and-compare refinement; the confidence rules: test_confidence.c).
  * Frames come from a small renderer written here from docs/conventions.md
  * (rays in millimetres, supersampled, nearest texel, a shading term), not from
  * refine.c's own geometry. training/refine.py is checked against the same
@@ -229,44 +229,6 @@ static void euler_roundtrip(void **state)
     for (int i = 0; i < 3; i++) assert_true(fabs(back[i] - e[i]) < 1e-9);
 }
 
-static void confidence_rules(void **state)
-{
-    (void)state;
-    rf_conf c;
-    char err[256], note[160];
-    rf_conf_defaults(&c);
-    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05}",
-                                   "{\"x\": [-30, 30], \"y\": [-30, 30], \"z\": [-20, 40]}", err,
-                                   sizeof err),
-                     0);
-    assert_true(c.residual_max == 0.05 && c.residual_max_unrefined == 0.05 &&
-                c.range_margin_deg == 2.0);
-    double in[3] = {10, -29, 41.9}, out[3] = {0, 45.04, 0}, zero[3] = {0, 0, 0};
-    assert_int_equal(rf_judge(&c, 0.01, NAN, in, 1, note, sizeof note), 1);
-    assert_string_equal(note, "");
-    assert_int_equal(rf_judge(&c, 0.06, NAN, zero, 1, note, sizeof note), 0);
-    assert_non_null(strstr(note, "poor alignment (residual 0.060 > 0.050)"));
-    assert_int_equal(rf_judge(&c, 0.01, NAN, out, 1, note, sizeof note), 0);
-    assert_string_equal(note, "outside the model's ranges (y = 45.0 not in [-30, 30])");
-    assert_int_equal(rf_judge(&c, NAN, NAN, zero, 1, note, sizeof note), 0);
-    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 0.05, \"residual_max_unrefined\": 0.3}",
-                                   NULL, err, sizeof err),
-                     0);
-    assert_int_equal(rf_judge(&c, 0.2, NAN, zero, 0, note, sizeof note), 1);
-    /* the colour ratio: colour frames only (NaN: a gray frame, no check) */
-    assert_true(c.colour_min == 0);
-    assert_int_equal(rf_conf_parse(&c, "{\"colour_min\": 0.4}", NULL, err, sizeof err), 0);
-    assert_int_equal(rf_judge(&c, 0.01, 0.9, zero, 1, note, sizeof note), 1);
-    assert_int_equal(rf_judge(&c, 0.01, NAN, zero, 1, note, sizeof note), 1);
-    assert_int_equal(rf_judge(&c, 0.01, 0.12, zero, 1, note, sizeof note), 0);
-    assert_non_null(strstr(note, "colours do not match (colour ratio 0.12 < 0.40)"));
-    assert_int_equal(rf_conf_parse(&c, "{\"residual_max\": 2}", NULL, err, sizeof err), -1);
-    assert_non_null(strstr(err, "residual_max"));
-    assert_int_equal(rf_conf_parse(&c, "[1]", NULL, err, sizeof err), -1);
-    assert_int_equal(rf_conf_parse(&c, NULL, "{\"x\": [1]}", err, sizeof err), -1);
-    assert_non_null(strstr(err, "spherepose.ranges"));
-}
-
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -274,7 +236,6 @@ int main(void)
         cmocka_unit_test(refuses_bad_input),
         cmocka_unit_test(base64),
         cmocka_unit_test(euler_roundtrip),
-        cmocka_unit_test(confidence_rules),
     };
     return cmocka_run_group_tests_name("refine", tests, NULL, NULL);
 }
