@@ -7,7 +7,14 @@
  * the rotation (3), the circle's centre (2) and radius (1), with the
  * photometric coefficients projected out. Coarse to fine on 2x2 box levels of
  * the frame's crop and of the texture. Every step follows the Python file, so
- * that both land on the same pose (docs/refine.md). */
+ * that both land on the same pose (docs/refine.md).
+ *
+ * The per-pixel work runs in float over arrays of the sampled pixels (one
+ * array per quantity), in loops that the compiler vectorises; the sums that
+ * decide a step (the photometric fit and its sum of squares) are taken in
+ * double. The poses agree with the reference's double arithmetic within
+ * about 1e-4 degrees (docs/refine.md, cost). */
+#define _DEFAULT_SOURCE /* madvise */
 #define _POSIX_C_SOURCE 200809L
 #include "refine.h"
 #include "pi_err.h"
@@ -16,30 +23,64 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 
 #ifndef M_PI
 #define M_PI 3.14159265358979323846
 #endif
 
+/* The per-pixel loops are compiled three ways and picked at run time. Every
+ * version does the same IEEE operations in the same order (no fused
+ * multiply-add in ISO C mode, no sums reordered: the lanes are written out),
+ * so all give the same bits. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define RF_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define RF_CLONES
+#endif
+
+/* Lanes of the written-out sums; the sample arrays are padded to a multiple. */
+#define RF_LANES 16
+
 struct rf_texture {
     int w[RF_LEVELS], h[RF_LEVELS];
-    float *px[RF_LEVELS]; /* [h][w][3], BGR; exact (8-bit values / 4^k) */
+    /* [h + 2][w + 2][3], BGR, exact (8-bit values / 4^k); a border of one
+     * texel (the longitude wrapped, the latitude clamped) so that a bilinear
+     * lookup reads texels (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)
+     * without a test */
+    float *px[RF_LEVELS];
 };
 
-/* Where a sampled pixel reads the texture (tex_coords). */
-typedef struct rf_tc {
-    uint32_t o[4]; /* offsets of texels (i0, j0), (i1, j0), (i0, j1), (i1, j1) */
-    double fx, fy, dut0, dut2, dvt1;
-} rf_tc;
-
-/* Per sampled pixel: what a step's Jacobian pass needs from its value pass. */
-typedef struct rf_pix {
-    double obs[3], val[3], n[3];
-    double grad[3][3]; /* d val_c / d b, the body direction */
-    double t;          /* the ray's length to the sphere */
-    int flat;          /* the texture is constant around it: J = 0 */
-    rf_tc tc;
-} rf_pix;
+/* The arrays of the sampled pixels (float, RF_LANES-padded, one block). */
+enum {
+    A_X,
+    A_Y, /* pixel centre minus the level's first circle centre */
+    A_O0,
+    A_O1,
+    A_O2, /* observed B, G, R */
+    A_NX,
+    A_NY,
+    A_NZ, /* the sphere's normal (world) */
+    A_RX,
+    A_RY, /* the ray's x, y at depth 1 */
+    A_INV,
+    A_T, /* 1 / |ray|, the ray's length to the sphere */
+    A_FX,
+    A_FY, /* bilinear weights */
+    A_DUT0,
+    A_DUT2,
+    A_DVT1, /* d (u, v) texel / d b */
+    A_V0,
+    A_V1,
+    A_V2, /* texture values */
+    A_DU0,
+    A_DU1,
+    A_DU2, /* d value / d u texel */
+    A_DV0,
+    A_DV1,
+    A_DV2, /* d value / d v texel */
+    A_COUNT
+};
 
 /* The photometric fit of one evaluation (per channel, 5 coefficients). */
 typedef struct rf_fit {
@@ -52,9 +93,13 @@ struct rf_work {
     const rf_image *frame;          /* the frame, the crop's corner at (x0, y0) */
     int gray;                       /* a gray frame: the texture is seen as its luma */
     int x0, y0;
-    rf_pix *pix;
-    size_t pcap;
-    double sst; /* the sampled pixels' variance sum (pixel_set) */
+    float *a[A_COUNT]; /* the sample arrays, within buf */
+    int32_t *off;      /* texel offsets */
+    void *buf;
+    size_t cap;      /* samples the arrays hold */
+    long np, npad;   /* samples of the current level, and padded */
+    double c0x, c0y; /* the level's first circle centre (A_X, A_Y's origin) */
+    double sst;      /* the sampled pixels' variance sum (pixel_set) */
 };
 
 static const int rf_iters[RF_LEVELS] = RF_ITERS_INIT;
@@ -177,9 +222,28 @@ static inline void load_px(const rf_image *im, int i, int j, double *out)
     }
 }
 
+/* The texture's levels are read at scattered places, mostly out of the
+ * caches (the network ran in between): in 2 MB pages where the system gives
+ * them (Linux), a lookup seldom misses the TLB as well. */
+static void *tex_alloc(size_t bytes)
+{
+#ifdef MADV_HUGEPAGE
+    size_t huge = (size_t)2 << 20;
+    if (bytes >= huge / 2) {
+        void *p = NULL;
+        size_t n = (bytes + huge - 1) / huge * huge;
+        if (posix_memalign(&p, huge, n)) return NULL;
+        madvise(p, n, MADV_HUGEPAGE);
+        return p;
+    }
+#endif
+    return malloc(bytes);
+}
+
 rf_texture *rf_texture_new(const rf_image *img, char *err)
 {
     int w = img->width, h = img->height, unit = RF_TEXTURE_WIDTH >> (RF_LEVELS - 1);
+    float *lv[RF_LEVELS] = {NULL};
     if (w != 2 * h || h < 8) {
         pi_seterrn(err, RF_TEXTURE_ERR_LEN, "texture is %dx%d, expected width = 2 x height", w, h);
         return NULL;
@@ -212,20 +276,40 @@ rf_texture *rf_texture_new(const rf_image *img, char *err)
         w /= 2;
         h /= 2;
     }
-    t->px[0] = full;
+    lv[0] = full;
     full = NULL;
     t->w[0] = w;
     t->h[0] = h;
     for (int l = 1; l < RF_LEVELS; l++) {
         t->w[l] = t->w[l - 1] / 2;
         t->h[l] = t->h[l - 1] / 2;
-        t->px[l] = malloc((size_t)t->w[l] * t->h[l] * 3 * sizeof(float));
-        if (!t->px[l]) goto oom;
-        reduce2(t->px[l - 1], t->w[l - 1], t->h[l - 1], t->px[l]);
+        lv[l] = malloc((size_t)t->w[l] * t->h[l] * 3 * sizeof(float));
+        if (!lv[l]) goto oom;
+        reduce2(lv[l - 1], t->w[l - 1], t->h[l - 1], lv[l]);
     }
+    /* each level with its border: column -1 is column w - 1, column w is
+     * column 0 (the longitude wraps); row -1 is row 0, row h is row h - 1
+     * (training/refine.py sample clamps the latitude) */
+    for (int l = 0; l < RF_LEVELS; l++) {
+        int lw = t->w[l], lh = t->h[l];
+        size_t rs = (size_t)(lw + 2) * 3;
+        float *p = tex_alloc(rs * (lh + 2) * sizeof(float));
+        if (!p) goto oom;
+        for (int j = -1; j <= lh; j++) {
+            int sj = j < 0 ? 0 : j >= lh ? lh - 1 : j;
+            float *row = p + (size_t)(j + 1) * rs;
+            const float *src = lv[l] + (size_t)sj * lw * 3;
+            memcpy(row + 3, src, (size_t)lw * 3 * sizeof(float));
+            memcpy(row, src + (size_t)(lw - 1) * 3, 3 * sizeof(float));
+            memcpy(row + (size_t)(lw + 1) * 3, src, 3 * sizeof(float));
+        }
+        t->px[l] = p;
+    }
+    for (int l = 0; l < RF_LEVELS; l++) free(lv[l]);
     return t;
 oom:
     free(full);
+    for (int l = 0; l < RF_LEVELS; l++) free(lv[l]);
     rf_texture_free(t);
     pi_seterrn(err, RF_TEXTURE_ERR_LEN, "texture: out of memory");
     return NULL;
@@ -246,17 +330,22 @@ rf_work *rf_work_new(void)
 void rf_work_free(rf_work *w)
 {
     if (!w) return;
-    free(w->pix);
+    free(w->buf);
     free(w);
 }
 
-static int grow(void **p, size_t *cap, size_t need)
+/* Room for n samples (rounded up to RF_LANES) in the sample arrays. */
+static int reserve(rf_work *w, size_t n)
 {
-    if (need <= *cap) return 0;
-    void *q = realloc(*p, need);
-    if (!q) return -1;
-    *p = q;
-    *cap = need;
+    n = (n + RF_LANES - 1) / RF_LANES * RF_LANES;
+    if (n <= w->cap) return 0;
+    void *p = NULL;
+    if (posix_memalign(&p, 64, n * (A_COUNT * sizeof(float) + sizeof(int32_t)))) return -1;
+    free(w->buf);
+    w->buf = p;
+    w->cap = n;
+    for (int k = 0; k < A_COUNT; k++) w->a[k] = (float *)p + (size_t)k * n;
+    w->off = (int32_t *)((float *)p + (size_t)A_COUNT * n);
     return 0;
 }
 
@@ -301,24 +390,6 @@ static int frame_crop(rf_work *w, const rf_image *f, double cx, double cy, doubl
     return 0;
 }
 
-/* Pixel (i, j) of level lev of the crop. */
-static inline void level_px(const rf_work *w, int lev, int i, int j, double out[3])
-{
-    int k = 1 << lev;
-    double acc[3] = {0, 0, 0}, px[3];
-    for (int dj = 0; dj < k; dj++)
-        for (int di = 0; di < k; di++) {
-            load_px(w->frame, w->x0 + i * k + di, w->y0 + j * k + dj, px);
-            acc[0] += px[0];
-            acc[1] += px[1];
-            acc[2] += px[2];
-        }
-    double s = 1.0 / (k * k);
-    out[0] = acc[0] * s;
-    out[1] = acc[1] * s;
-    out[2] = acc[2] * s;
-}
-
 /* ---- geometry ------------------------------------------------------------------- */
 
 static inline double focal_of(double r, double fixed_f)
@@ -326,147 +397,217 @@ static inline double focal_of(double r, double fixed_f)
     return fixed_f > 0 ? fixed_f : r * sqrt(RF_REF_D_OVER_R * RF_REF_D_OVER_R - 1.0);
 }
 
-/* What the normals of one evaluation share: the circle and the camera. */
-typedef struct rf_geom {
-    double cx, cy, inv_f, dist, dist2m1; /* dist: camera to centre, unit sphere */
-} rf_geom;
+/* The per-pixel loops work on RF_LANES samples at a time in GCC's generic
+ * vectors, which each version compiles to its widest registers (the baseline
+ * to four SSE2 operations). */
+/* (static helpers only, always inlined: no vector crosses a call, so
+ * GCC's note on the vector ABI does not apply) */
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef float vf __attribute__((vector_size(RF_LANES * sizeof(float))));
+typedef int32_t vi __attribute__((vector_size(RF_LANES * sizeof(int32_t))));
 
-static inline void geom_init(rf_geom *g, double cx, double cy, double r, double f)
+typedef float vh __attribute__((vector_size(RF_LANES / 2 * sizeof(float))));
+typedef double vd __attribute__((vector_size(RF_LANES / 2 * sizeof(double))));
+typedef struct vf2 {
+    vh lo, hi;
+} vf2; /* a vf's halves */
+#define RF_JBLOCK (4 * RF_LANES)
+
+/* RF_LANES / 2 samples as doubles (p: a multiple of that) */
+static inline vd vdload(const float *p)
 {
-    double tan_a = r / f;
-    g->cx = cx;
-    g->cy = cy;
-    g->inv_f = 1.0 / f;
-    g->dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
-    g->dist2m1 = g->dist * g->dist - 1.0;
+    return __builtin_convertvector(*(const vh *)p, vd);
 }
 
-/* Unit normal of the sphere point seen through (u, v) (training/refine.py normals). */
-static inline void normal_at(double u, double v, const rf_geom *g, double n[3], double *t_out)
+static inline vf vload(const float *p) /* p: RF_LANES-aligned sample arrays */
 {
-    double x = (u - g->cx) * g->inv_f, y = -(v - g->cy) * g->inv_f;
-    double inv = 1.0 / sqrt(x * x + y * y + 1.0);
-    double dx = x * inv, dy = y * inv, dz = -inv;
-    double od = g->dist * dz;
-    double disc = od * od - g->dist2m1;
-    if (disc < 0) disc = 0;
-    double t = -od - sqrt(disc);
-    *t_out = t;
-    n[0] = t * dx;
-    n[1] = t * dy;
-    n[2] = g->dist + t * dz;
+    return *(const vf *)p;
 }
 
-/* d n / d (cx, cy, r) at pixel (u, v), n given (training/refine.py
- * normals_and_derivs: dt = -(n.dO + t n.dd) / (n.d), dn = dO + dt d + t dd). */
-static inline void normal_derivs(double u, double v, double cx, double cy, double r, double f,
-                                 int fixed, const double n[3], double t, double dn[3][3])
+/* m ? a : b lane by lane (m: a comparison's all-ones or zero) */
+static inline vf vsel(vi m, vf a, vf b)
 {
-    double x = (u - cx) / f, y = -(v - cy) / f;
-    double tan_a = r / f, sec = sqrt(1.0 + tan_a * tan_a);
-    double L = sqrt(x * x + y * y + 1.0), inv = 1.0 / L;
-    double d[3] = {x * inv, y * inv, -inv};
-    double nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
-    double dqs[3][3] = {{-1.0 / f, 0, 0}, {0, 1.0 / f, 0}, {0, 0, 0}}, dDs[3] = {0, 0, 0};
-    if (fixed)
-        dDs[2] = -(1.0 / f) / (tan_a * tan_a * sec);
-    else {
-        dqs[2][0] = -x / r;
-        dqs[2][1] = -y / r;
+    return (vf)(((vi)a & m) | ((vi)b & ~m));
+}
+
+static inline vi vimax(vi a, int b)
+{
+    vi m = a > b;
+    return (a & m) | (b & ~m);
+}
+
+static inline vi vimin(vi a, int b)
+{
+    vi m = a < b;
+    return (a & m) | (b & ~m);
+}
+
+static inline vf vabs(vf x)
+{
+    return (vf)((vi)x & 0x7fffffff);
+}
+
+/* 1 / sqrt(x), x >= 0, within 2e-7: a bit-level first guess and three Newton
+ * steps (sqrtf does not vectorise without -fno-math-errno). */
+static inline vf vrsqrt(vf x)
+{
+    vf h = 0.5f * x, y = (vf)(0x5f3759df - ((vi)x >> 1));
+    y = y * (1.5f - h * y * y);
+    y = y * (1.5f - h * y * y);
+    y = y * (1.5f - h * y * y);
+    return y;
+}
+
+/* atan2 (Cephes' atanf on |t| <= tan(pi/8), and atan(t) = pi/4 +
+ * atan((t - 1) / (t + 1)) above; the quadrant from the signs): within 2e-7
+ * rad, a hundredth of a texel's width at the finest level. */
+static inline vf vatan2(vf y, vf x)
+{
+    vf ax = vabs(x), ay = vabs(y);
+    vi swap = ay > ax;
+    vf mx = vsel(swap, ay, ax), mn = vsel(swap, ax, ay);
+    vf t = mn / (mx + 1e-30f); /* [0, 1]; 0 at the origin */
+    vi big = t > 0.41421356f;
+    vf u = vsel(big, (t - 1.0f) / (t + 1.0f), t);
+    vf z = u * u;
+    vf p = ((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z -
+           3.33329491539e-1f;
+    vf a = vsel(big, (vf){0} + (float)(M_PI / 4), (vf){0}) + (p * z * u + u);
+    a = vsel(swap, (float)(M_PI / 2) - a, a);
+    a = vsel(x < 0, (float)M_PI - a, a);
+    return vsel(y < 0, -a, a);
+}
+
+/* Where each sample's ray meets the sphere (training/refine.py normals), the
+ * body direction b = R^T n, and where b reads the texture (sample's first
+ * half): texel offset, bilinear weights, d (u, v) / d b. dcx, dcy: the
+ * circle's centre minus the arrays' origin; dist: camera to centre (unit
+ * sphere); tw, th: the texture level's size. */
+RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float dcx, float dcy,
+                                    float inv_f, float dist, int tw, int th)
+{
+    const float dist2 = dist * dist, kw = (float)(tw / (2 * M_PI)), kh = (float)(th / M_PI);
+    const float u0 = (float)(tw / 2.0 - 0.5), v0 = (float)(th / 2.0 - 0.5);
+    const int rs = (tw + 2) * 3;
+    for (long k = 0; k < n; k += RF_LANES) {
+        vf x = (vload(w->a[A_X] + k) - dcx) * inv_f, y = -(vload(w->a[A_Y] + k) - dcy) * inv_f;
+        vf p2 = x * x + y * y, inv = vrsqrt(p2 + 1.0f), inv2 = inv * inv;
+        /* disc = (O.d)^2 - |O|^2 + 1 written without the cancellation of the
+         * two large terms: 1 - dist^2 sin^2 of the ray's angle */
+        vf disc = 1.0f - dist2 * p2 * inv2;
+        disc = vsel(disc > 0, disc, (vf){0});
+        vf sd = disc * vrsqrt(disc);
+        vf t = dist * inv - sd;
+        vf n0 = t * x * inv, n1 = t * y * inv, n2 = dist * p2 * inv2 + sd * inv;
+        vf bx = R[0] * n0 + R[3] * n1 + R[6] * n2;
+        vf by = R[1] * n0 + R[4] * n1 + R[7] * n2;
+        vf bz = R[2] * n0 + R[5] * n1 + R[8] * n2;
+        vf rho2 = bx * bx + bz * bz;
+        rho2 = vsel(rho2 > 1e-12f, rho2, (vf){0} + 1e-12f);
+        vf irho = vrsqrt(rho2), rho = rho2 * irho;
+        vf ut = vatan2(bx, bz) * kw + u0;
+        vf vt = v0 - vatan2(by, rho) * kh;
+        /* floor (x86-64's baseline has no rounding instruction) */
+        vi i0 = __builtin_convertvector(ut, vi), j0 = __builtin_convertvector(vt, vi);
+        i0 += __builtin_convertvector(i0, vf) > ut; /* true is -1 */
+        j0 += __builtin_convertvector(j0, vf) > vt;
+        *(vf *)(w->a[A_FX] + k) = ut - __builtin_convertvector(i0, vf);
+        *(vf *)(w->a[A_FY] + k) = vt - __builtin_convertvector(j0, vf);
+        /* ut lies in [-0.5, tw - 0.5], vt in [-0.5, th - 0.5]: the border */
+        i0 = vimin(vimax(i0, -1), tw - 1);
+        j0 = vimin(vimax(j0, -1), th - 1);
+        *(vi *)(w->off + k) = (j0 + 1) * rs + (i0 + 1) * 3;
+        vf krho = kw / rho2;
+        *(vf *)(w->a[A_DUT0] + k) = bz * krho;
+        *(vf *)(w->a[A_DUT2] + k) = -bx * krho;
+        *(vf *)(w->a[A_DVT1] + k) = -kh * irho;
+        *(vf *)(w->a[A_NX] + k) = n0;
+        *(vf *)(w->a[A_NY] + k) = n1;
+        *(vf *)(w->a[A_NZ] + k) = n2;
+        *(vf *)(w->a[A_RX] + k) = x;
+        *(vf *)(w->a[A_RY] + k) = y;
+        *(vf *)(w->a[A_INV] + k) = inv;
+        *(vf *)(w->a[A_T] + k) = t;
     }
-    for (int k = 0; k < 3; k++) {
-        const double *dq = dqs[k];
-        double ddq = d[0] * dq[0] + d[1] * dq[1] + d[2] * dq[2], dd[3];
-        for (int i = 0; i < 3; i++) dd[i] = (dq[i] - d[i] * ddq) * inv;
-        double ndd = n[0] * dd[0] + n[1] * dd[1] + n[2] * dd[2];
-        double dt = -(n[2] * dDs[k] + t * ndd) / nd;
-        for (int i = 0; i < 3; i++) dn[k][i] = dt * d[i] + t * dd[i];
-        dn[k][2] += dDs[k];
-    }
 }
-
-/* atan2 (x86-64's libm takes about a sixth of refinement's time in it):
- * Cephes' atan, a rational function on |t| <= 0.66 and atan(t) = pi/4 +
- * atan((t - 1) / (t + 1)) above, within 2.3e-16 of libm on [-1, 1]; the
- * quadrant from the signs. */
-static inline double atan2_fast(double y, double x)
+/* The bilinear lookups (sample's second half): values and their derivatives
+ * along the texel axes, per channel. */
+static void gather_pass(rf_work *w, long n, const float *restrict tex, int rs)
 {
-    static const double P[5] = {-8.750608600031904122785e-1, -1.615753718733365076637e1,
-                                -7.500855792314704667340e1, -1.228866684490136173410e2,
-                                -6.485021904942025371773e1};
-    static const double Q[5] = {2.485846490142306297962e1, 1.650270098316988542046e2,
-                                4.328810604912902668951e2, 4.853903996359136964868e2,
-                                1.945506571482613964425e2};
-    double ax = fabs(x), ay = fabs(y);
-    if (ax == 0 && ay == 0) return atan2(y, x);
-    int swap = ay > ax;
-    double t = swap ? ax / ay : ay / ax, base = 0; /* t in [0, 1] */
-    if (t > 0.66) {
-        t = (t - 1) / (t + 1);
-        base = M_PI / 4;
-    }
-    double z = t * t;
-    double pz = (((P[0] * z + P[1]) * z + P[2]) * z + P[3]) * z + P[4];
-    double qz = ((((z + Q[0]) * z + Q[1]) * z + Q[2]) * z + Q[3]) * z + Q[4];
-    double a = base + (t * (z * pz / qz) + t); /* atan(min / max) */
-    if (swap) a = M_PI / 2 - a;
-    if (x < 0) a = M_PI - a;
-    return y < 0 ? -a : a;
-}
-
-/* Where body direction b reads the texture: the four texels' offsets, the
- * bilinear weights and d (u, v) / d b. The first half of a bilinear lookup;
- * tex_gather is the second, so that the texels can be fetched ahead. */
-static inline void tex_coords(int w, int h, const double b[3], rf_tc *tc)
-{
-    double bx = b[0], by = b[1], bz = b[2];
-    double rho2 = bx * bx + bz * bz;
-    if (rho2 < 1e-12) rho2 = 1e-12;
-    double rho = sqrt(rho2);
-    double lon = atan2_fast(bx, bz);
-    double lat = asin(by < -1 ? -1 : by > 1 ? 1 : by);
-    double ut = (lon + M_PI) * (w / (2 * M_PI)) - 0.5;
-    double vt = (M_PI / 2 - lat) * (h / M_PI) - 0.5;
-    /* floor without libm (x86-64's baseline has no rounding instruction), and
-     * the wrap without a division: ut lies in [-0.5, w - 0.5] */
-    long i0 = (long)ut, j0 = (long)vt;
-    if ((double)i0 > ut) i0--;
-    if ((double)j0 > vt) j0--;
-    tc->fx = ut - (double)i0;
-    tc->fy = vt - (double)j0;
-    if (i0 < 0) i0 += w;
-    if (i0 >= w) i0 -= w;
-    long i1 = i0 + 1 == w ? 0 : i0 + 1, j1 = j0 + 1;
-    if (j1 > h - 1) j1 = h - 1;
-    if (j1 < 0) j1 = 0;
-    if (j0 > h - 1) j0 = h - 1;
-    if (j0 < 0) j0 = 0;
-    tc->o[0] = (uint32_t)((j0 * w + i0) * 3);
-    tc->o[1] = (uint32_t)((j0 * w + i1) * 3);
-    tc->o[2] = (uint32_t)((j1 * w + i0) * 3);
-    tc->o[3] = (uint32_t)((j1 * w + i1) * 3);
-    double kw = w / (2 * M_PI), kh = -h / M_PI, krho = kw / rho2;
-    tc->dut0 = bz * krho;
-    tc->dut2 = -bx * krho;
-    tc->dvt1 = kh / rho;
-}
-
-/* Bilinear value (3 channels) and d value / d b (training/refine.py sample). */
-static inline void tex_gather(const float *tex, const rf_tc *tc, double val[3], double grad[3][3])
-{
-    const float *t00 = tex + tc->o[0], *t10 = tex + tc->o[1];
-    const float *t01 = tex + tc->o[2], *t11 = tex + tc->o[3];
-    double fx = tc->fx, fy = tc->fy;
+    const int32_t *restrict off = w->off;
+    const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
+    float *restrict v0 = w->a[A_V0], *restrict v1 = w->a[A_V1], *restrict v2 = w->a[A_V2];
+    float *restrict u0 = w->a[A_DU0], *restrict u1 = w->a[A_DU1], *restrict u2 = w->a[A_DU2];
+    float *restrict e0 = w->a[A_DV0], *restrict e1 = w->a[A_DV1], *restrict e2 = w->a[A_DV2];
+    float *restrict vv[3] = {v0, v1, v2}, *restrict uu[3] = {u0, u1, u2},
+                    *restrict ee[3] = {e0, e1, e2};
     for (int c = 0; c < 3; c++) {
-        double a00 = t00[c], a10 = t10[c], a01 = t01[c], a11 = t11[c];
-        double top = a00 + fx * (a10 - a00);
-        double bot = a01 + fx * (a11 - a01);
-        val[c] = top + fy * (bot - top);
-        double du = (a10 - a00) + fy * ((a11 - a01) - (a10 - a00));
-        double dv = bot - top;
-        grad[c][0] = du * tc->dut0;
-        grad[c][1] = dv * tc->dvt1;
-        grad[c][2] = du * tc->dut2;
+        float *restrict val = vv[c], *restrict du = uu[c], *restrict dv = ee[c];
+        for (long k = 0; k < n; k++) {
+            int o = off[k] + c;
+            float a00 = tex[o], a10 = tex[o + 3], a01 = tex[o + rs], a11 = tex[o + rs + 3];
+            float a = fx[k], b = fy[k];
+            float top = a00 + a * (a10 - a00), bot = a01 + a * (a11 - a01);
+            val[k] = top + b * (bot - top);
+            du[k] = (a10 - a00) + b * ((a11 - a01) - (a10 - a00));
+            dv[k] = bot - top;
+        }
+    }
+}
+
+/* A gray frame sees the texture as its luma. */
+static void luma_pass(rf_work *w, long n)
+{
+    static const int q[3][3] = {{A_V0, A_V1, A_V2}, {A_DU0, A_DU1, A_DU2}, {A_DV0, A_DV1, A_DV2}};
+    for (int m = 0; m < 3; m++) {
+        float *b = w->a[q[m][0]], *g = w->a[q[m][1]], *r = w->a[q[m][2]];
+        for (long k = 0; k < n; k++) {
+            float y = (float)(b[k] * RF_LUMA_B + g[k] * RF_LUMA_G + r[k] * RF_LUMA_R);
+            b[k] = g[k] = r[k] = y;
+        }
+    }
+}
+
+/* Per channel, the sums of the photometric fit over the samples (double
+ * lanes: the sum of squares it leaves is a small difference of them):
+ * T^2 m (m = 1, nx, ny, nz, nx nx, nx ny, nx nz, ny ny, ny nz, nz nz),
+ * T (1, n), T obs (1, n), obs, obs^2. */
+RF_CLONES static void fit_sums(const rf_work *w, long npad, double q[3][20])
+{
+    for (int c = 0; c < 3; c++) {
+        vd acc[20];
+        for (int i = 0; i < 20; i++) acc[i] = (vd){0};
+        for (long k = 0; k < npad; k += RF_LANES / 2) {
+            vd t = vdload(w->a[A_V0 + c] + k), o = vdload(w->a[A_O0 + c] + k);
+            vd n0 = vdload(w->a[A_NX] + k), n1 = vdload(w->a[A_NY] + k),
+               n2 = vdload(w->a[A_NZ] + k);
+            vd t2 = t * t, to = t * o;
+            acc[0] += t2;
+            acc[1] += t2 * n0;
+            acc[2] += t2 * n1;
+            acc[3] += t2 * n2;
+            acc[4] += t2 * (n0 * n0);
+            acc[5] += t2 * (n0 * n1);
+            acc[6] += t2 * (n0 * n2);
+            acc[7] += t2 * (n1 * n1);
+            acc[8] += t2 * (n1 * n2);
+            acc[9] += t2 * (n2 * n2);
+            acc[10] += t;
+            acc[11] += t * n0;
+            acc[12] += t * n1;
+            acc[13] += t * n2;
+            acc[14] += to;
+            acc[15] += to * n0;
+            acc[16] += to * n1;
+            acc[17] += to * n2;
+            acc[18] += o;
+            acc[19] += o * o;
+        }
+        for (int i = 0; i < 20; i++) {
+            double sum = 0;
+            for (int l = 0; l < RF_LANES / 2; l++) sum += acc[i][l];
+            q[c][i] = sum;
+        }
     }
 }
 
@@ -505,9 +646,61 @@ static void solve_spd(int k, double A[6][6], const double *b, double *x)
     }
 }
 
-/* Sampled pixels of a level (training/refine.py pixel_set): fills w->pix[].obs
- * and the pixel centres; returns the count (or -1 out of memory). */
-static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int stride, double **uv)
+/* The samples of rows j0.. and columns i0.. (stride apart) within rm of
+ * (cx, cy) at level lev: centres relative to (cx, cy), observed values (a
+ * level-l pixel is the mean of a 2^l x 2^l block of the frame, summed here:
+ * the crop's levels are not built), and the block sums' moments s[c], q[c]
+ * (exact integers). ch: the frame's channels, a constant where inlined. */
+static inline __attribute__((always_inline)) long fill_samples(rf_work *w, int lev, int i0, int i1,
+                                                               int j0, int j1, int stride,
+                                                               double cx, double cy, double rm,
+                                                               int ch, uint64_t s[3], uint64_t q[3])
+{
+    const rf_image *f = w->frame;
+    int k = 1 << lev;
+    float sc = 1.0f / (float)(k * k); /* a power of two: exact */
+    float *X = w->a[A_X], *Y = w->a[A_Y], *o0 = w->a[A_O0], *o1 = w->a[A_O1], *o2 = w->a[A_O2];
+    long n = 0;
+    for (int j = j0; j < j1; j += stride) {
+        double v = j + 0.5, dy2 = (v - cy) * (v - cy);
+        const uint8_t *row = f->data + (size_t)(w->y0 + j * k) * f->stride + (size_t)w->x0 * ch;
+        for (int i = i0; i < i1; i += stride) {
+            double u = i + 0.5;
+            if ((u - cx) * (u - cx) + dy2 > rm * rm) continue;
+            uint32_t s0 = 0, s1 = 0, s2 = 0;
+            for (int dj = 0; dj < k; dj++) {
+                const uint8_t *p = row + (size_t)dj * f->stride + (size_t)i * k * ch;
+                for (int di = 0; di < k; di++, p += ch) {
+                    s0 += p[0];
+                    if (ch > 1) {
+                        s1 += p[1];
+                        s2 += p[2];
+                    }
+                }
+            }
+            if (ch == 1) s1 = s2 = s0;
+            X[n] = (float)(u - cx);
+            Y[n] = (float)(v - cy);
+            o0[n] = (float)s0 * sc;
+            o1[n] = (float)s1 * sc;
+            o2[n] = (float)s2 * sc;
+            s[0] += s0;
+            s[1] += s1;
+            s[2] += s2;
+            q[0] += (uint64_t)s0 * s0;
+            q[1] += (uint64_t)s1 * s1;
+            q[2] += (uint64_t)s2 * s2;
+            n++;
+        }
+    }
+    return n;
+}
+
+/* Sampled pixels of a level (training/refine.py pixel_set): fills the sample
+ * arrays' centres (relative to the circle's centre (cx, cy), which becomes
+ * their origin) and observed values, pads them to RF_LANES with the circle's
+ * centre, observed 0; returns the count (or -1 out of memory). */
+static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int stride)
 {
     int W = w->w[lev], H = w->h[lev];
     double rm = RF_RHO_MAX * r;
@@ -521,108 +714,70 @@ static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int s
     i0 = (i0 + stride - 1) / stride * stride;
     size_t most =
         (j1 > j0 && i1 > i0) ? (size_t)((j1 - j0) / stride + 1) * ((i1 - i0) / stride + 1) : 0;
-    if (grow((void **)&w->pix, &w->pcap, (most + 1) * (sizeof(rf_pix) + 2 * sizeof(double))) < 0)
-        return -1;
-    /* the pixel centres live after the rf_pix records in the same block */
-    *uv = (double *)(w->pix + most + 1);
-    long n = 0;
-    for (int j = j0; j < j1; j += stride)
-        for (int i = i0; i < i1; i += stride) {
-            double u = i + 0.5, v = j + 0.5;
-            if ((u - cx) * (u - cx) + (v - cy) * (v - cy) > rm * rm) continue;
-            level_px(w, lev, i, j, w->pix[n].obs);
-            (*uv)[2 * n] = u;
-            (*uv)[2 * n + 1] = v;
-            n++;
-        }
-    /* the frame's variance sum over them: the residual's denominator */
-    double sum[3] = {0, 0, 0}, sst = 0;
-    for (long k = 0; k < n; k++)
-        for (int c = 0; c < 3; c++) sum[c] += w->pix[k].obs[c];
-    for (long k = 0; k < n; k++)
-        for (int c = 0; c < 3; c++) {
-            double d = w->pix[k].obs[c] - sum[c] / n;
-            sst += d * d;
-        }
-    w->sst = sst;
+    if (reserve(w, most + 1) < 0) return -1;
+    uint64_t s[3] = {0, 0, 0}, q[3] = {0, 0, 0};
+    long n;
+    switch (w->frame->channels) {
+    case 1: n = fill_samples(w, lev, i0, i1, j0, j1, stride, cx, cy, rm, 1, s, q); break;
+    case 3: n = fill_samples(w, lev, i0, i1, j0, j1, stride, cx, cy, rm, 3, s, q); break;
+    default: n = fill_samples(w, lev, i0, i1, j0, j1, stride, cx, cy, rm, 4, s, q); break;
+    }
+    w->np = n;
+    w->npad = (n + RF_LANES - 1) / RF_LANES * RF_LANES;
+    for (int m = A_X; m <= A_O2; m++)
+        for (long k = n; k < w->npad; k++) w->a[m][k] = 0;
+    w->c0x = cx;
+    w->c0y = cy;
+    /* the frame's variance sum over them, the residual's denominator, from
+     * the exact moments of the block sums */
+    double sst = 0, kk = (double)(1 << lev) * (1 << lev);
+    for (int c = 0; c < 3 && n > 0; c++) sst += (double)q[c] - (double)s[c] * (double)s[c] / n;
+    w->sst = sst / (kk * kk);
     return n;
 }
 
-/* The value pass of an evaluation at (R, cx, cy, r): renders the texture at
- * the sampled pixels (kept in w->pix for the Jacobian pass) and fits the
- * photometric model; fit->sse is the sum of squares it leaves. */
-static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv, long np,
-                     const double R[3][3], double cx, double cy, double r, double fixed_f,
-                     rf_fit *fit)
+/* The value pass of an evaluation at (R, cx, cy, r) (the level's
+ * coordinates): renders the texture at the sampled pixels (kept in the
+ * arrays for the Jacobian pass) and fits the photometric model; fit->sse is
+ * the sum of squares it leaves. */
+static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3][3], double cx,
+                     double cy, double r, double fixed_f, rf_fit *fit)
 {
     const float *tex = t->px[lev];
-    int tw = t->w[lev], th = t->h[lev];
-    rf_geom geo;
-    geom_init(&geo, cx, cy, r, focal_of(r, fixed_f));
-    double oo[3], acc[3][20];
+    int tw = t->w[lev], th = t->h[lev], rs = (tw + 2) * 3;
+    long np = w->np, npad = w->npad;
+    double f = focal_of(r, fixed_f), tan_a = r / f, dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
+    float Rf[9];
+    for (int i = 0; i < 9; i++) Rf[i] = (float)R[i / 3][i % 3];
+    geometry_pass(w, npad, Rf, (float)(cx - w->c0x), (float)(cy - w->c0y), (float)(1.0 / f),
+                  (float)dist, tw, th);
+    /* ask for every sample's two texel rows ahead: after the network has run
+     * the texture is mostly out of the caches */
+    for (long k = 0; k < np; k++) {
+        __builtin_prefetch(tex + w->off[k]);
+        __builtin_prefetch(tex + w->off[k] + rs);
+    }
+    gather_pass(w, npad, tex, rs);
+    if (w->gray) luma_pass(w, npad);
+    /* the padding takes no part: no texture there */
+    for (int m = A_V0; m <= A_DV2; m++)
+        for (long k = np; k < npad; k++) w->a[m][k] = 0;
+    double q[3][20], oo[3];
+    fit_sums(w, npad, q);
     memset(fit, 0, sizeof *fit);
-    memset(acc, 0, sizeof acc);
-    /* first where every pixel reads the texture, asking for those texels
-     * ahead: they are mostly out of the caches after the network has run */
-    for (long k = 0; k < np; k++) {
-        rf_pix *p = &w->pix[k];
-        double b[3];
-        normal_at(uv[2 * k], uv[2 * k + 1], &geo, p->n, &p->t);
-        for (int i = 0; i < 3; i++)
-            b[i] = p->n[0] * R[0][i] + p->n[1] * R[1][i] + p->n[2] * R[2][i];
-        tex_coords(tw, th, b, &p->tc);
-        __builtin_prefetch(tex + p->tc.o[0]);
-        __builtin_prefetch(tex + p->tc.o[2]);
-    }
-    for (long k = 0; k < np; k++) {
-        rf_pix *p = &w->pix[k];
-        tex_gather(tex, &p->tc, p->val, p->grad);
-        if (w->gray) {
-            double y = p->val[0] * RF_LUMA_B + p->val[1] * RF_LUMA_G + p->val[2] * RF_LUMA_R;
-            for (int i = 0; i < 3; i++) {
-                double gi = p->grad[0][i] * RF_LUMA_B + p->grad[1][i] * RF_LUMA_G +
-                            p->grad[2][i] * RF_LUMA_R;
-                p->grad[0][i] = p->grad[1][i] = p->grad[2][i] = gi;
-            }
-            p->val[0] = p->val[1] = p->val[2] = y;
-        }
-        p->flat = 1;
-        for (int c = 0; c < 3 && p->flat; c++)
-            p->flat = p->grad[c][0] == 0 && p->grad[c][1] == 0 && p->grad[c][2] == 0;
-        /* A^T A and A^T obs of the rows a = (T, T nx, T ny, T nz, 1), written
-         * out: the products of the normal are shared by the channels */
-        double n0 = p->n[0], n1 = p->n[1], n2 = p->n[2];
-        double m[10] = {1, n0, n1, n2, n0 * n0, n0 * n1, n0 * n2, n1 * n1, n1 * n2, n2 * n2};
-        for (int c = 0; c < 3; c++) {
-            double tv = p->val[c], o = p->obs[c], t2 = tv * tv, to = tv * o;
-            double *q = acc[c];
-            for (int i = 0; i < 10; i++) q[i] += t2 * m[i];
-            q[10] += tv;
-            q[11] += tv * n0;
-            q[12] += tv * n1;
-            q[13] += tv * n2;
-            q[14] += to;
-            q[15] += to * n0;
-            q[16] += to * n1;
-            q[17] += to * n2;
-            q[18] += o;
-            q[19] += o * o;
-        }
-    }
     for (int c = 0; c < 3; c++) {
-        const double *q = acc[c];
         double(*M)[6] = fit->AtA[c];
         /* rows (T, T nx, T ny, T nz, 1): T^2 m[...] above the diagonal, T m[...] in the
          * last column */
         static const int idx[4][4] = {{0, 1, 2, 3}, {1, 4, 5, 6}, {2, 5, 7, 8}, {3, 6, 8, 9}};
         for (int i = 0; i < 4; i++) {
-            for (int j = i; j < 4; j++) M[i][j] = q[idx[i][j]];
-            M[i][4] = q[10 + i];
-            fit->Atb[c][i] = q[14 + i];
+            for (int j = i; j < 4; j++) M[i][j] = q[c][idx[i][j]];
+            M[i][4] = q[c][10 + i];
+            fit->Atb[c][i] = q[c][14 + i];
         }
         M[4][4] = (double)np;
-        fit->Atb[c][4] = q[18];
-        oo[c] = q[19];
+        fit->Atb[c][4] = q[c][18];
+        oo[c] = q[c][19];
     }
     /* |obs - A coef|^2 = obs.obs - 2 coef.A^T obs + coef.A^T A coef (training/refine.py
      * photometric_fit): no second pass over the pixels */
@@ -632,53 +787,144 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double *uv,
             for (int j = 0; j < i; j++) M[i][j] = M[j][i];
         double *x = fit->coef[c];
         solve_spd(5, M, fit->Atb[c], x);
-        double q = 0, xb = 0;
+        double qq = 0, xb = 0;
         for (int i = 0; i < 5; i++) {
             double mx = 0;
             for (int j = 0; j < 5; j++) mx += M[i][j] * x[j];
-            q += x[i] * mx;
+            qq += x[i] * mx;
             xb += x[i] * fit->Atb[c][i];
         }
-        fit->sse += oo[c] - 2 * xb + q;
+        fit->sse += oo[c] - 2 * xb + qq;
+    }
+}
+
+/* The Jacobian's sums (float lanes; training/refine.py _eval): per sample the
+ * derivatives of the rendering J (channel x 6: rotation, centre, radius), and
+ * over the samples J^T J (21: the upper triangle), per channel J^T A (6 x 5)
+ * and J^T e (6, summed over the channels). k: (inv_f, cr, dDr) the ray's
+ * derivatives (see jacobian), R the rotation, a the photometric coefficients. */
+#define RF_JSUMS (21 + 90 + 6)
+RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], const float kd[3],
+                               const float a[3][5], double out[RF_JSUMS])
+{
+    const float inv_f = kd[0], cr = kd[1], dDr = kd[2];
+    /* float lanes over RF_JBLOCK samples each, then double: H is nearly
+     * singular along rotations that mimic a shift of the circle, so its sums
+     * need more than float's seven digits */
+    vf acc[RF_JSUMS];
+    vd tot[RF_JSUMS][2];
+    memset(tot, 0, sizeof tot);
+    for (long k = 0; k < npad; k += RF_LANES) {
+        if (k % RF_JBLOCK == 0)
+            for (int i = 0; i < RF_JSUMS; i++) acc[i] = (vf){0};
+        vf x = vload(w->a[A_RX] + k), y = vload(w->a[A_RY] + k);
+        vf inv = vload(w->a[A_INV] + k), t = vload(w->a[A_T] + k);
+        vf n0 = vload(w->a[A_NX] + k), n1 = vload(w->a[A_NY] + k), n2 = vload(w->a[A_NZ] + k);
+        vf e0 = x * inv, e1 = y * inv, e2 = -inv; /* the ray's direction d */
+        vf ind = 1.0f / (n0 * e0 + n1 * e1 + n2 * e2);
+        /* d n / d (cx, cy, r) (training/refine.py normals_and_derivs):
+         * dd = (dq - d (d.dq)) / L, dt = -(n.dO + t n.dd) / (n.d), dn = dO + dt d + t dd */
+        vf dn[3][3];
+        {
+            vf ddq = -e0 * inv_f;
+            vf a0 = (-inv_f - e0 * ddq) * inv, a1 = -e1 * ddq * inv, a2 = -e2 * ddq * inv;
+            vf dt = -(t * (n0 * a0 + n1 * a1 + n2 * a2)) * ind;
+            dn[0][0] = dt * e0 + t * a0;
+            dn[0][1] = dt * e1 + t * a1;
+            dn[0][2] = dt * e2 + t * a2;
+        }
+        {
+            vf ddq = e1 * inv_f;
+            vf a0 = -e0 * ddq * inv, a1 = (inv_f - e1 * ddq) * inv, a2 = -e2 * ddq * inv;
+            vf dt = -(t * (n0 * a0 + n1 * a1 + n2 * a2)) * ind;
+            dn[1][0] = dt * e0 + t * a0;
+            dn[1][1] = dt * e1 + t * a1;
+            dn[1][2] = dt * e2 + t * a2;
+        }
+        {
+            vf ddq = cr * (x * e0 + y * e1);
+            vf a0 = (cr * x - e0 * ddq) * inv, a1 = (cr * y - e1 * ddq) * inv, a2 = -e2 * ddq * inv;
+            vf dt = -(n2 * dDr + t * (n0 * a0 + n1 * a1 + n2 * a2)) * ind;
+            dn[2][0] = dt * e0 + t * a0;
+            dn[2][1] = dt * e1 + t * a1;
+            dn[2][2] = dt * e2 + t * a2 + dDr;
+        }
+        /* the world-frame gradient of channel c is du_c P + dv_c Q: P, Q are
+         * R times the texel axes' d (u, v) / d b; the rendering's derivatives
+         * are linear in it (rotation: g x n, circle: g . dn) */
+        vf d0 = vload(w->a[A_DUT0] + k), d2 = vload(w->a[A_DUT2] + k), d1 = vload(w->a[A_DVT1] + k);
+        vf P[3], Q[3], JP[6], JQ[6];
+        for (int i = 0; i < 3; i++) {
+            P[i] = R[3 * i] * d0 + R[3 * i + 2] * d2;
+            Q[i] = R[3 * i + 1] * d1;
+        }
+        JP[0] = P[1] * n2 - P[2] * n1;
+        JP[1] = P[2] * n0 - P[0] * n2;
+        JP[2] = P[0] * n1 - P[1] * n0;
+        JQ[0] = Q[1] * n2 - Q[2] * n1;
+        JQ[1] = Q[2] * n0 - Q[0] * n2;
+        JQ[2] = Q[0] * n1 - Q[1] * n0;
+        for (int m = 0; m < 3; m++) {
+            JP[3 + m] = P[0] * dn[m][0] + P[1] * dn[m][1] + P[2] * dn[m][2];
+            JQ[3 + m] = Q[0] * dn[m][0] + Q[1] * dn[m][1] + Q[2] * dn[m][2];
+        }
+        vf J[3][6], e[3];
+        for (int c = 0; c < 3; c++) {
+            vf tv = vload(w->a[A_V0 + c] + k);
+            vf sh = a[c][0] + a[c][1] * n0 + a[c][2] * n1 + a[c][3] * n2;
+            vf al = sh * vload(w->a[A_DU0 + c] + k), be = sh * vload(w->a[A_DV0 + c] + k);
+            e[c] = vload(w->a[A_O0 + c] + k) - (tv * sh + a[c][4]);
+            for (int i = 0; i < 6; i++) J[c][i] = al * JP[i] + be * JQ[i];
+            vf ab[5] = {tv, tv * n0, tv * n1, tv * n2, (vf){0} + 1.0f};
+            for (int i = 0; i < 6; i++)
+                for (int j = 0; j < 5; j++) acc[21 + c * 30 + i * 5 + j] += J[c][i] * ab[j];
+        }
+        int h = 0;
+        for (int i = 0; i < 6; i++)
+            for (int j = i; j < 6; j++, h++)
+                acc[h] += J[0][i] * J[0][j] + J[1][i] * J[1][j] + J[2][i] * J[2][j];
+        for (int i = 0; i < 6; i++)
+            acc[111 + i] += J[0][i] * e[0] + J[1][i] * e[1] + J[2][i] * e[2];
+        if ((k + RF_LANES) % RF_JBLOCK == 0 || k + RF_LANES >= npad)
+            for (int i = 0; i < RF_JSUMS; i++) {
+                vf2 half;
+                memcpy(&half, &acc[i], sizeof half);
+                tot[i][0] += __builtin_convertvector(half.lo, vd);
+                tot[i][1] += __builtin_convertvector(half.hi, vd);
+            }
+    }
+    for (int i = 0; i < RF_JSUMS; i++) {
+        double s = 0;
+        for (int l = 0; l < RF_LANES / 2; l++) s += tot[i][0][l] + tot[i][1][l];
+        out[i] = s;
     }
 }
 
 /* The Jacobian pass at the pose and circle of the last value pass: the normal
  * equations H d = g of a step, with the photometric coefficients projected out. */
-static void jacobian(rf_work *w, const double *uv, long np, const double R[3][3], double cx,
-                     double cy, double r, double fixed_f, const rf_fit *fit, double H[6][6],
-                     double g[6])
+static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f, const rf_fit *fit,
+                     double H[6][6], double g[6])
 {
-    double f = focal_of(r, fixed_f), JtA[3][6][5];
-    memset(H, 0, sizeof(double) * 36);
-    memset(g, 0, sizeof(double) * 6);
-    memset(JtA, 0, sizeof JtA);
-    for (long k = 0; k < np; k++) {
-        const rf_pix *p = &w->pix[k];
-        if (p->flat) continue;
-        const double *n = p->n;
-        double dn[3][3];
-        normal_derivs(uv[2 * k], uv[2 * k + 1], cx, cy, r, f, fixed_f > 0, n, p->t, dn);
-        for (int c = 0; c < 3; c++) {
-            const double *a = fit->coef[c];
-            double gw[3], J[6], tv = p->val[c];
-            for (int i = 0; i < 3; i++)
-                gw[i] = R[i][0] * p->grad[c][0] + R[i][1] * p->grad[c][1] + R[i][2] * p->grad[c][2];
-            double shade = a[0] + a[1] * n[0] + a[2] * n[1] + a[3] * n[2];
-            double e = p->obs[c] - (tv * shade + a[4]);
-            J[0] = (gw[1] * n[2] - gw[2] * n[1]) * shade;
-            J[1] = (gw[2] * n[0] - gw[0] * n[2]) * shade;
-            J[2] = (gw[0] * n[1] - gw[1] * n[0]) * shade;
-            for (int q = 0; q < 3; q++)
-                J[3 + q] = (gw[0] * dn[q][0] + gw[1] * dn[q][1] + gw[2] * dn[q][2]) * shade;
-            double ab[5] = {tv, tv * n[0], tv * n[1], tv * n[2], 1.0};
-            for (int i = 0; i < 6; i++) {
-                for (int j = i; j < 6; j++) H[i][j] += J[i] * J[j];
-                for (int j = 0; j < 5; j++) JtA[c][i][j] += J[i] * ab[j];
-                g[i] += J[i] * e;
-            }
-        }
-    }
+    double f = focal_of(r, fixed_f), tan_a = r / f, sec = sqrt(1.0 + tan_a * tan_a);
+    /* the ray's derivatives: d q / d cx = (-1/f, 0), d q / d cy = (0, 1/f);
+     * r moves the camera away when f is fixed (d dist / d r), else it scales
+     * the rays (d q / d r = -q / r) */
+    float kd[3] = {(float)(1.0 / f), fixed_f > 0 ? 0.0f : (float)(-1.0 / r),
+                   fixed_f > 0 ? (float)(-(1.0 / f) / (tan_a * tan_a * sec)) : 0.0f};
+    float Rf[9], a[3][5];
+    double s[RF_JSUMS];
+    for (int i = 0; i < 9; i++) Rf[i] = (float)R[i / 3][i % 3];
+    for (int c = 0; c < 3; c++)
+        for (int i = 0; i < 5; i++) a[c][i] = (float)fit->coef[c][i];
+    jac_sums(w, w->npad, Rf, kd, a, s);
+    double JtA[3][6][5];
+    int h = 0;
+    for (int i = 0; i < 6; i++)
+        for (int j = i; j < 6; j++, h++) H[i][j] = s[h];
+    for (int c = 0; c < 3; c++)
+        for (int i = 0; i < 6; i++)
+            for (int j = 0; j < 5; j++) JtA[c][i][j] = s[21 + c * 30 + i * 5 + j];
+    for (int i = 0; i < 6; i++) g[i] = s[111 + i];
     /* variable projection (training/refine.py _eval): take out of J^T J what
      * the refitted photometric coefficients absorb, J^T A (A^T A)^-1 A^T J */
     for (int c = 0; c < 3; c++) {
@@ -687,9 +933,9 @@ static void jacobian(rf_work *w, const double *uv, long np, const double R[3][3]
         for (int i = 0; i < 6; i++) solve_spd(5, M, JtA[c][i], X[i]);
         for (int i = 0; i < 6; i++)
             for (int j = i; j < 6; j++) {
-                double q = 0;
-                for (int k = 0; k < 5; k++) q += JtA[c][i][k] * X[j][k];
-                H[i][j] -= q;
+                double qq = 0;
+                for (int k = 0; k < 5; k++) qq += JtA[c][i][k] * X[j][k];
+                H[i][j] -= qq;
             }
     }
     for (int i = 0; i < 6; i++)
@@ -723,20 +969,21 @@ static double off_axis_share(const double C[3][3])
 
 /* The frame's colour share over the fitted rendering's, on the pixels of the
  * last value pass (NaN when the rendering has no colour). */
-static double colour_ratio(const rf_work *w, long np, const rf_fit *fit)
+static double colour_ratio(const rf_work *w, const rf_fit *fit)
 {
+    long np = w->np;
     double so[3] = {0, 0, 0}, sm[3] = {0, 0, 0}, Co[3][3], Cm[3][3];
     memset(Co, 0, sizeof Co);
     memset(Cm, 0, sizeof Cm);
+    const float *nx = w->a[A_NX], *ny = w->a[A_NY], *nz = w->a[A_NZ];
     for (int pass = 0; pass < 2; pass++)
         for (long k = 0; k < np; k++) {
-            const rf_pix *p = &w->pix[k];
             double o[3], m[3];
             for (int c = 0; c < 3; c++) {
                 const double *a = fit->coef[c];
-                double shade = a[0] + a[1] * p->n[0] + a[2] * p->n[1] + a[3] * p->n[2];
-                m[c] = p->val[c] * shade + a[4];
-                o[c] = p->obs[c];
+                double shade = a[0] + a[1] * nx[k] + a[2] * ny[k] + a[3] * nz[k];
+                m[c] = w->a[A_V0 + c][k] * shade + a[4];
+                o[c] = w->a[A_O0 + c][k];
             }
             if (pass == 0) {
                 for (int c = 0; c < 3; c++) {
@@ -765,8 +1012,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
 {
     double R[3][3];
     int x0, y0, total = 0, have_final = 0, at_final = 0;
-    double *uv, final_sse = 0, final_sst = 0;
-    long np0 = 0;
+    double final_sse = 0, final_sst = 0;
     rf_fit fit0; /* the finest level's fit at the final pose, when at_final */
     memcpy(R, R0, sizeof R);
     if (!t || !w || !frame || !frame->data || !(r > 2) || !isfinite(cx) || !isfinite(cy) ||
@@ -789,7 +1035,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
         double s = 1.0 / (1 << lev);
         double ff = focal_px > 0 ? focal_px * s : 0;
         int li = RF_LEVELS - 1 - lev;
-        long np = pixel_set(w, lev, cx * s, cy * s, r * s, rf_strides[li], &uv);
+        long np = pixel_set(w, lev, cx * s, cy * s, r * s, rf_strides[li]);
         if (np < 0) {
             pi_seterrn(err, errlen, "refine: out of memory");
             return -1;
@@ -802,9 +1048,9 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
          * is kept and another step comes. */
         double H[6][6], g[6], lam = RF_DAMPING;
         rf_fit fit, fc;
-        evaluate(t, lev, w, uv, np, R, cx * s, cy * s, r * s, ff, &fit);
+        evaluate(t, lev, w, R, cx * s, cy * s, r * s, ff, &fit);
         at_final = 1;
-        jacobian(w, uv, np, R, cx * s, cy * s, r * s, ff, &fit, H, g);
+        jacobian(w, R, r * s, ff, &fit, H, g);
         for (int it = 0; it < rf_iters[li]; it++) {
             double Hd[6][6], d[6], M[3][3], Rc[3][3];
             memcpy(Hd, H, sizeof Hd);
@@ -830,7 +1076,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
                 total++;
                 break;
             }
-            evaluate(t, lev, w, uv, np, Rc, cxc * s, cyc * s, rc_ * s, ff, &fc);
+            evaluate(t, lev, w, Rc, cxc * s, cyc * s, rc_ * s, ff, &fc);
             at_final = fc.sse <= fit.sse; /* w->pix holds the candidate's rendering */
             if (fc.sse <= fit.sse) {
                 memcpy(R, Rc, sizeof R);
@@ -840,8 +1086,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
                 fit = fc;
                 lam = lam * 0.1 > RF_DAMPING ? lam * 0.1 : RF_DAMPING;
                 total++;
-                if (it + 1 < rf_iters[li])
-                    jacobian(w, uv, np, R, cx * s, cy * s, r * s, ff, &fit, H, g);
+                if (it + 1 < rf_iters[li]) jacobian(w, R, r * s, ff, &fit, H, g);
             } else {
                 lam *= 10.0;
             }
@@ -850,14 +1095,13 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
             have_final = 1;
             final_sse = fit.sse;
             final_sst = w->sst;
-            np0 = np;
             fit0 = fit;
         }
     }
     /* the residual: the finest level's pixels (chosen where that level began),
      * at the final pose (training/refine.py) */
     if (!have_final) {
-        long np = pixel_set(w, 0, cx, cy, r, rf_strides[RF_LEVELS - 1], &uv);
+        long np = pixel_set(w, 0, cx, cy, r, rf_strides[RF_LEVELS - 1]);
         if (np < 0) {
             pi_seterrn(err, errlen, "refine: out of memory");
             return -1;
@@ -866,10 +1110,9 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
             pi_seterrn(err, errlen, "refine: circle too small or outside the frame");
             return -1;
         }
-        evaluate(t, 0, w, uv, np, R, cx, cy, r, focal_px, &fit0);
+        evaluate(t, 0, w, R, cx, cy, r, focal_px, &fit0);
         final_sse = fit0.sse;
         final_sst = w->sst;
-        np0 = np;
         at_final = 1;
     }
     out->residual = final_sst > 0 ? final_sse / final_sst : 1.0;
@@ -877,8 +1120,8 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
      * the last step's candidate, when it was not kept, is rendered over */
     out->colour = NAN;
     if (!w->gray) {
-        if (!at_final) evaluate(t, 0, w, uv, np0, R, cx, cy, r, focal_px, &fit0);
-        out->colour = colour_ratio(w, np0, &fit0);
+        if (!at_final) evaluate(t, 0, w, R, cx, cy, r, focal_px, &fit0);
+        out->colour = colour_ratio(w, &fit0);
     }
     memcpy(out->R, R, sizeof R);
     rf_matrix_to_euler(R, out->euler);
