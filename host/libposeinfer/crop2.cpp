@@ -78,12 +78,18 @@ inline long ifloor(double x)
 KERN2_CLONES void block_sums(const uint8_t *p, size_t stride, int s, size_t nbytes, uint16_t *col,
                              uint16_t *h)
 {
+    const size_t m = nbytes - 3 * (size_t)(s - 1);
+    if (s == 3) { // the usual reduction (512 to 767 pixel frames): one pass each
+        const uint8_t *q1 = p + stride, *q2 = q1 + stride;
+        for (size_t i = 0; i < nbytes; i++) col[i] = (uint16_t)(p[i] + q1[i] + q2[i]);
+        for (size_t i = 0; i < m; i++) h[i] = (uint16_t)(col[i] + col[i + 3] + col[i + 6]);
+        return;
+    }
     for (size_t i = 0; i < nbytes; i++) col[i] = p[i];
     for (int y = 1; y < s; y++) {
         const uint8_t *q = p + (size_t)y * stride;
         for (size_t i = 0; i < nbytes; i++) col[i] = (uint16_t)(col[i] + q[i]);
     }
-    const size_t m = nbytes - 3 * (size_t)(s - 1);
     for (size_t i = 0; i < m; i++) h[i] = col[i];
     for (int xx = 1; xx < s; xx++) {
         const uint16_t *c = col + 3 * xx;
@@ -330,8 +336,9 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
 
 // The accumulator slots an edge at (x, y) with unit gradient (ux, uy) votes
 // for at signed radii sr[k]: boff[k] + Y * ws + X for the cell X = floor(x -
-// sr ux + 0.5), Y = floor(y - sr uy + 0.5), `trash` outside. Its own loop so
-// that it vectorises.
+// sr ux + 0.5), Y = floor(y - sr uy + 0.5), trash + k outside (a slot per k:
+// votes outside in a row do not wait for each other). Its own loop so that
+// it vectorises.
 KERN2_CLONES void vote_cells(const double *sr, const int32_t *boff, int n, double x, double y,
                              double ux, double uy, int ws, int hs, int32_t trash, int32_t *cell)
 {
@@ -339,7 +346,7 @@ KERN2_CLONES void vote_cells(const double *sr, const int32_t *boff, int n, doubl
     for (int k = 0; k < n; k++) {
         const int32_t X = floor32(x - sr[k] * ux + 0.5), Y = floor32(y - sr[k] * uy + 0.5);
         const int32_t in = (X >= 0) & (X < ws) & (Y >= 0) & (Y < hs);
-        cell[k] = in ? boff[k] + Y * ws + X : trash;
+        cell[k] = in ? boff[k] + Y * ws + X : trash + k;
     }
 }
 
@@ -358,23 +365,29 @@ KERN2_CLONES void unit_gradients(const int32_t *gx, const int32_t *gy, size_t n,
     }
 }
 
-// One radius bin of the coarse accumulator: the 3 x 3 box sum (zeros
-// outside) of it plus the next bin (when there is one), and per cell the
-// largest so far (vmax) and its bin (bmax, the first on ties). Row by row:
-// the horizontal 3-sums of three rows in h3 (3 ws cells, a ring), the
-// vertical sum of a row once the row below it is summed. The bin's plane
-// is cleared after (its last use: the next frame finds it zero). Row loops,
-// so that they vectorise.
-KERN2_CLONES void box_max(int32_t *a, const int32_t *next, int hs, int ws, int32_t b, int32_t *pair,
-                          int32_t *h3, int32_t *vmax, int32_t *bmax)
+// The coarse accumulator's nb radius bins (planes of hs x ws): per bin the
+// 3 x 3 box sum (zeros outside) of it plus the next bin (when there is
+// one), and per cell the largest (vmax) and its bin (bmax, the first on
+// ties). Row by row, all bins per row (the rows of vmax and bmax stay in
+// the cache): the horizontal 3-sums of three rows per bin in h3 (3 ws cells
+// per bin, a ring), the vertical sum of a row once the row below it is
+// summed. Each row of a bin's plane is cleared after its last use (the next
+// frame finds the accumulator zero). Row loops, so that they vectorise.
+KERN2_CLONES void box_max(int32_t *acc, int nb, int hs, int ws, int32_t *pair, int32_t *h3,
+                          int32_t *vmax, int32_t *bmax)
 {
-    const size_t W = (size_t)ws;
+    const size_t W = (size_t)ws, plane = (size_t)hs * W;
+    for (size_t c = 0; c < plane; c++) {
+        vmax[c] = -1;
+        bmax[c] = 0;
+    }
     for (int Y = 0; Y <= hs; Y++) {
-        if (Y < hs) {
+        for (int b = 0; b < nb && Y < hs; b++) {
             // the horizontal 3-sums of row Y (no neighbour beyond the row)
-            int32_t *ar = a + (size_t)Y * W, *hr = h3 + (size_t)(Y % 3) * W;
-            if (next) {
-                const int32_t *nr = next + (size_t)Y * W;
+            int32_t *ar = acc + (size_t)b * plane + (size_t)Y * W;
+            int32_t *hr = h3 + ((size_t)b * 3 + (size_t)(Y % 3)) * W;
+            if (b + 1 < nb) {
+                const int32_t *nr = ar + plane;
                 for (size_t c = 0; c < W; c++) pair[c] = ar[c] + nr[c];
             } else {
                 for (size_t c = 0; c < W; c++) pair[c] = ar[c];
@@ -382,20 +395,24 @@ KERN2_CLONES void box_max(int32_t *a, const int32_t *next, int hs, int ws, int32
             for (size_t c = 1; c + 1 < W; c++) hr[c] = pair[c - 1] + pair[c] + pair[c + 1];
             hr[0] = pair[0] + (ws > 1 ? pair[1] : 0);
             if (ws > 1) hr[W - 1] = pair[W - 2] + pair[W - 1];
+            // used by this bin and the one before
             std::fill(ar, ar + W, 0);
         }
         // row Yo = Y - 1: the rows above and below it (zero beyond the plane)
         const int Yo = Y - 1;
         if (Yo < 0) continue;
-        const int32_t *hm = h3 + (size_t)(Yo % 3) * W;
         int32_t *vm = vmax + (size_t)Yo * W, *bm = bmax + (size_t)Yo * W;
-        const int32_t *hu = Yo > 0 ? h3 + (size_t)((Yo - 1) % 3) * W : nullptr;
-        const int32_t *hd = Yo + 1 < hs ? h3 + (size_t)((Yo + 1) % 3) * W : nullptr;
-        for (size_t c = 0; c < W; c++) {
-            const int32_t v = (hu ? hu[c] : 0) + hm[c] + (hd ? hd[c] : 0);
-            const int32_t gt = v > vm[c];
-            vm[c] = gt ? v : vm[c];
-            bm[c] = gt ? b : bm[c];
+        for (int b = 0; b < nb; b++) {
+            const int32_t *hb = h3 + (size_t)b * 3 * W;
+            const int32_t *hm = hb + (size_t)(Yo % 3) * W;
+            const int32_t *hu = Yo > 0 ? hb + (size_t)((Yo - 1) % 3) * W : nullptr;
+            const int32_t *hd = Yo + 1 < hs ? hb + (size_t)((Yo + 1) % 3) * W : nullptr;
+            for (size_t c = 0; c < W; c++) {
+                const int32_t v = (hu ? hu[c] : 0) + hm[c] + (hd ? hd[c] : 0);
+                const int32_t gt = v > vm[c];
+                vm[c] = gt ? v : vm[c];
+                bm[c] = gt ? b : bm[c];
+            }
         }
     }
 }
@@ -449,10 +466,10 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const size_t plane = (size_t)hs * ws;
     // the accumulator is left zero after each frame (box_max clears it)
     std::vector<int32_t> &acc = scratch.acc;
-    if (acc.size() < (size_t)nb * plane + 1) {
-        acc.assign((size_t)nb * plane + 1, 0);
-    }
     const int nr = (int)(hi - lo + 1);
+    if (acc.size() < (size_t)nb * plane + 2 * (size_t)nr) {
+        acc.assign((size_t)nb * plane + 2 * (size_t)nr, 0);
+    }
     std::vector<double> srs(2 * (size_t)nr);
     std::vector<int32_t> cell(2 * (size_t)nr), boff(2 * (size_t)nr);
     for (int sg = 0; sg < 2; sg++)
@@ -462,7 +479,7 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         }
     thread_local std::vector<double> ux, uy;
     unit_gradients(e.gx.data(), e.gy.data(), e.n, ux, uy);
-    // a vote outside the plane goes to the slot after the last bin, never read
+    // a vote outside the plane goes to one of the slots after the last bin, never read
     const int32_t trash = (int32_t)((size_t)nb * plane);
     for (size_t i = 0; i < e.n; i++) {
         vote_cells(srs.data(), boff.data(), 2 * nr, e.x[i], e.y[i], ux[i], uy[i], ws, hs, trash,
@@ -475,15 +492,13 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     std::vector<int32_t> &pair = scratch.box, &hsum = scratch.hsum, &vmax = scratch.vmax,
                          &bmax = scratch.bmax;
     pair.resize((size_t)ws);
-    hsum.resize(3 * (size_t)ws);
-    fill(vmax, plane, -1);
-    fill(bmax, plane, 0);
-    for (int b = 0; b < nb; b++) {
-        int32_t *a = &acc[(size_t)b * plane];
-        box_max(a, b + 1 < nb ? a + plane : nullptr, hs, ws, b, pair.data(), hsum.data(),
-                vmax.data(), bmax.data());
-    }
-    acc[(size_t)nb * plane] = 0; // the slot of the votes outside
+    hsum.resize(3 * (size_t)nb * ws);
+    vmax.resize(plane);
+    bmax.resize(plane);
+    box_max(acc.data(), nb, hs, ws, pair.data(), hsum.data(), vmax.data(), bmax.data());
+    // the slots of the votes outside
+    std::fill(acc.begin() + (long)((size_t)nb * plane),
+              acc.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
     const double sup = p->cand_gap * (double)lo;
     long best = -1;
     // a peak whose circle would be refused as cut by the frame edge is refined but does not use
@@ -707,6 +722,15 @@ KERN2_CLONES long count_le(const double *q, long n, double c)
     return k;
 }
 
+// How many of v[0 .. n) have k v[i] <= t (k v[i] rounded). A loop of its own
+// so that it vectorises.
+KERN2_CLONES size_t count_scaled_le(const double *v, size_t n, double k, double t)
+{
+    size_t c = 0;
+    for (size_t i = 0; i < n; i++) c += !(k * v[i] > t);
+    return c;
+}
+
 // ratio > 0: only peaks of at least ratio times their ray's median step. The
 // scores are an odd number (2 floor(2 win) + 1), so the median is the middle
 // one, m, and c >= ratio m holds exactly when at least (n + 1) / 2 scores s
@@ -827,8 +851,14 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
         if (xs.size() < 8) return false;
         ares.resize(res.size());
         for (size_t i = 0; i < res.size(); i++) ares[i] = std::fabs(res[i]);
-        const double sigma =
-            std::max(p->sigma_min_px, 1.4826 * median_of(ares.data(), ares.size()));
+        // the scale is sigma_min_px when 1.4826 times the upper middle value
+        // is not above it (the median is at most that value, and rounding is
+        // monotonic): counted, the median taken only otherwise
+        const size_t na = ares.size();
+        const double smin = p->sigma_min_px;
+        double sigma = smin;
+        if (count_scaled_le(ares.data(), na, 1.4826, smin) < na / 2 + 1)
+            sigma = std::max(smin, 1.4826 * median_of(ares.data(), na));
         const double cut = p->tukey_c * sigma;
         wts.resize(res.size());
         for (size_t i = 0; i < res.size(); i++) {
