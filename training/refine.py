@@ -630,19 +630,26 @@ def calibrate(residuals_refined, residuals_unrefined, factor=3.0, floor=0.02, co
               settle_floor=0.1, gray_factor=1.0):
     """Thresholds from in-range held-out frames: `factor` times their 99th percentile
     (at least `floor`); the colour ratio's least: their 1st percentile over `factor` (colour
-    frames only; none: no colour check); converge_max_deg: `factor` times the 99th percentile of
+    frames only; none: no colour check; the residual thresholds too when there are colour
+    frames); converge_max_deg: `factor` times the 99th percentile of
     settle_deg's rotations (at least `settle_floor`), of the frames whose residual then passes
     residual_max (settles: (rotation, residual) pairs, None for a frame not measured; none: the
     default); residual_max_gray: `gray_factor` times the 99th percentile of the settled residual
-    of the gray frames (colour None) that settled within converge_max_deg (none: residual_max
-    holds for gray frames too)."""
+    of the gray frames (colour None) that settled within converge_max_deg with a residual within
+    residual_max (none: residual_max holds for gray frames too)."""
     q = lambda a, p=0.99: float(np.quantile(np.asarray(a, np.float64), p))
+    colours = list(colours)
+    coloured = [c for c in colours if c is not None]
+    if coloured and len(coloured) < len(colours):
+        # the residual thresholds from the colour frames: a gray frame's first pass may stop
+        # degrees short (the convergence check and residual_max_gray are its thresholds)
+        keep = [c is not None for c in colours]
+        residuals_refined = [a for a, k in zip(residuals_refined, keep) if k]
+        residuals_unrefined = [a for a, k in zip(residuals_unrefined, keep) if k]
     out = {"residual_max": round(max(floor, factor * q(residuals_refined)), 4),
            "residual_max_unrefined": round(max(floor, factor * q(residuals_unrefined)), 4),
            "range_margin_deg": DEFAULT_CONFIDENCE["range_margin_deg"],
            "calibrated_on": len(residuals_refined)}
-    colours = list(colours)
-    coloured = [c for c in colours if c is not None]
     if coloured:
         out["colour_min"] = round(q(coloured, 0.01) / factor, 4)
     settles = list(settles)
@@ -650,7 +657,8 @@ def calibrate(residuals_refined, residuals_unrefined, factor=3.0, floor=0.02, co
     if moves:
         out["converge_max_deg"] = round(max(settle_floor, factor * q(moves)), 3)
         cmax = out["converge_max_deg"]
-        gray = [d[1] for d, c in zip(settles, colours) if d is not None and c is None and d[0] <= cmax]
+        gray = [d[1] for d, c in zip(settles, colours)
+                if d is not None and c is None and d[0] <= cmax and d[1] <= out["residual_max"]]
         if gray:
             out["residual_max_gray"] = round(max(floor, gray_factor * q(gray)), 4)
             out["calibrated_on_gray"] = len(gray)
