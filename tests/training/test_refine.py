@@ -299,6 +299,17 @@ def test_c_parameters_match(tmp_path):
     assert define("RF_META_CONFIDENCE") == f'"{rf.META_CONFIDENCE}"'
 
 
+def test_c_check_parameters_match():
+    """host/libposeinfer/confidence.h copies the convergence check's parameters and the default
+    converge_max_deg."""
+    h = (REPO / "host" / "libposeinfer" / "confidence.h").read_text()
+    defs = {line.split()[1]: line.split()[2] for line in h.splitlines() if line.startswith("#define RF_CHECK_")}
+    assert int(defs["RF_CHECK_PASSES"]) == rf.CHECK_PASSES
+    assert float(defs["RF_CHECK_PX"]) == rf.CHECK_PX and float(defs["RF_CHECK_DEG"]) == rf.CHECK_DEG
+    c = (REPO / "host" / "libposeinfer" / "confidence.c").read_text()
+    assert f"c->converge_max_deg = {rf.DEFAULT_CONFIDENCE['converge_max_deg']};" in c
+
+
 def test_c_agrees_with_python(tmp_path, texture):
     """poseinfer (C) and training/refine.py refine the same network angles to within 0.005 deg,
     and give the same residual and verdict (a gray frame's through the convergence check)."""
