@@ -41,6 +41,9 @@
 
 /* Lanes of the written-out sums; the sample arrays are padded to a multiple. */
 #define RF_LANES 16
+#ifndef RF_VL
+#define RF_VL 16 /* lanes of the vector operations (RF_LANES a multiple) */
+#endif
 
 struct rf_texture {
     int w[RF_LEVELS], h[RF_LEVELS];
@@ -403,42 +406,49 @@ static inline double focal_of(double r, double fixed_f)
 /* (static helpers only, always inlined: no vector crosses a call, so
  * GCC's note on the vector ABI does not apply) */
 #pragma GCC diagnostic ignored "-Wpsabi"
-typedef float vf __attribute__((vector_size(RF_LANES * sizeof(float))));
-typedef int32_t vi __attribute__((vector_size(RF_LANES * sizeof(int32_t))));
+typedef float vf __attribute__((vector_size(RF_VL * sizeof(float))));
+typedef int32_t vi __attribute__((vector_size(RF_VL * sizeof(int32_t))));
 
-typedef float vh __attribute__((vector_size(RF_LANES / 2 * sizeof(float))));
-typedef double vd __attribute__((vector_size(RF_LANES / 2 * sizeof(double))));
+typedef float vh __attribute__((vector_size(RF_VL / 2 * sizeof(float))));
+typedef double vd __attribute__((vector_size(RF_VL / 2 * sizeof(double))));
 typedef struct vf2 {
     vh lo, hi;
-} vf2; /* a vf's halves */
-#define RF_JBLOCK (4 * RF_LANES)
+} vf2;               /* a vf's halves */
+#define RF_JBLOCK 64 /* samples per float block of the Jacobian sums */
 
-/* RF_LANES / 2 samples as doubles (p: a multiple of that) */
+/* RF_VL / 2 samples as doubles (p: a multiple of that) */
 static inline vd vdload(const float *p)
 {
     return __builtin_convertvector(*(const vh *)p, vd);
 }
 
-static inline vf vload(const float *p) /* p: RF_LANES-aligned sample arrays */
+static inline vf vload(const float *p) /* p: RF_VL-aligned sample arrays */
 {
     return *(const vf *)p;
 }
 
-/* m ? a : b lane by lane (m: a comparison's all-ones or zero) */
+/* Lane masks come from sign bits, not from comparisons: GCC splits a vector
+ * wider than the machine's into halves, but not a comparison's mask. */
+static inline vi vneg(vf x) /* all ones where x < 0 (also -0) */
+{
+    return (vi)x >> 31;
+}
+
+/* m ? a : b lane by lane (m: all ones or zero) */
 static inline vf vsel(vi m, vf a, vf b)
 {
     return (vf)(((vi)a & m) | ((vi)b & ~m));
 }
 
-static inline vi vimax(vi a, int b)
+static inline vi vimax(vi a, int b) /* |a - b| < 2^31 */
 {
-    vi m = a > b;
+    vi m = (b - a) >> 31;
     return (a & m) | (b & ~m);
 }
 
 static inline vi vimin(vi a, int b)
 {
-    vi m = a < b;
+    vi m = (a - b) >> 31;
     return (a & m) | (b & ~m);
 }
 
@@ -464,18 +474,18 @@ static inline vf vrsqrt(vf x)
 static inline vf vatan2(vf y, vf x)
 {
     vf ax = vabs(x), ay = vabs(y);
-    vi swap = ay > ax;
+    vi swap = vneg(ax - ay); /* ay > ax */
     vf mx = vsel(swap, ay, ax), mn = vsel(swap, ax, ay);
     vf t = mn / (mx + 1e-30f); /* [0, 1]; 0 at the origin */
-    vi big = t > 0.41421356f;
+    vi big = vneg(0.41421356f - t);
     vf u = vsel(big, (t - 1.0f) / (t + 1.0f), t);
     vf z = u * u;
     vf p = ((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z -
            3.33329491539e-1f;
     vf a = vsel(big, (vf){0} + (float)(M_PI / 4), (vf){0}) + (p * z * u + u);
     a = vsel(swap, (float)(M_PI / 2) - a, a);
-    a = vsel(x < 0, (float)M_PI - a, a);
-    return vsel(y < 0, -a, a);
+    a = vsel(vneg(x), (float)M_PI - a, a);
+    return vsel(vneg(y), -a, a);
 }
 
 /* Where each sample's ray meets the sphere (training/refine.py normals), the
@@ -489,13 +499,13 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
     const float dist2 = dist * dist, kw = (float)(tw / (2 * M_PI)), kh = (float)(th / M_PI);
     const float u0 = (float)(tw / 2.0 - 0.5), v0 = (float)(th / 2.0 - 0.5);
     const int rs = (tw + 2) * 3;
-    for (long k = 0; k < n; k += RF_LANES) {
+    for (long k = 0; k < n; k += RF_VL) {
         vf x = (vload(w->a[A_X] + k) - dcx) * inv_f, y = -(vload(w->a[A_Y] + k) - dcy) * inv_f;
         vf p2 = x * x + y * y, inv = vrsqrt(p2 + 1.0f), inv2 = inv * inv;
         /* disc = (O.d)^2 - |O|^2 + 1 written without the cancellation of the
          * two large terms: 1 - dist^2 sin^2 of the ray's angle */
         vf disc = 1.0f - dist2 * p2 * inv2;
-        disc = vsel(disc > 0, disc, (vf){0});
+        disc = vsel(vneg(disc), (vf){0}, disc);
         vf sd = disc * vrsqrt(disc);
         vf t = dist * inv - sd;
         vf n0 = t * x * inv, n1 = t * y * inv, n2 = dist * p2 * inv2 + sd * inv;
@@ -503,14 +513,14 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
         vf by = R[1] * n0 + R[4] * n1 + R[7] * n2;
         vf bz = R[2] * n0 + R[5] * n1 + R[8] * n2;
         vf rho2 = bx * bx + bz * bz;
-        rho2 = vsel(rho2 > 1e-12f, rho2, (vf){0} + 1e-12f);
+        rho2 = vsel(vneg(1e-12f - rho2), rho2, (vf){0} + 1e-12f);
         vf irho = vrsqrt(rho2), rho = rho2 * irho;
         vf ut = vatan2(bx, bz) * kw + u0;
         vf vt = v0 - vatan2(by, rho) * kh;
         /* floor (x86-64's baseline has no rounding instruction) */
         vi i0 = __builtin_convertvector(ut, vi), j0 = __builtin_convertvector(vt, vi);
-        i0 += __builtin_convertvector(i0, vf) > ut; /* true is -1 */
-        j0 += __builtin_convertvector(j0, vf) > vt;
+        i0 += vneg(ut - __builtin_convertvector(i0, vf)); /* -1 where i0 > ut */
+        j0 += vneg(vt - __builtin_convertvector(j0, vf));
         *(vf *)(w->a[A_FX] + k) = ut - __builtin_convertvector(i0, vf);
         *(vf *)(w->a[A_FY] + k) = vt - __builtin_convertvector(j0, vf);
         /* ut lies in [-0.5, tw - 0.5], vt in [-0.5, th - 0.5]: the border */
@@ -577,7 +587,7 @@ RF_CLONES static void fit_sums(const rf_work *w, long npad, double q[3][20])
     for (int c = 0; c < 3; c++) {
         vd acc[20];
         for (int i = 0; i < 20; i++) acc[i] = (vd){0};
-        for (long k = 0; k < npad; k += RF_LANES / 2) {
+        for (long k = 0; k < npad; k += RF_VL / 2) {
             vd t = vdload(w->a[A_V0 + c] + k), o = vdload(w->a[A_O0 + c] + k);
             vd n0 = vdload(w->a[A_NX] + k), n1 = vdload(w->a[A_NY] + k),
                n2 = vdload(w->a[A_NZ] + k);
@@ -605,7 +615,7 @@ RF_CLONES static void fit_sums(const rf_work *w, long npad, double q[3][20])
         }
         for (int i = 0; i < 20; i++) {
             double sum = 0;
-            for (int l = 0; l < RF_LANES / 2; l++) sum += acc[i][l];
+            for (int l = 0; l < RF_VL / 2; l++) sum += acc[i][l];
             q[c][i] = sum;
         }
     }
@@ -814,7 +824,7 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
     vf acc[RF_JSUMS];
     vd tot[RF_JSUMS][2];
     memset(tot, 0, sizeof tot);
-    for (long k = 0; k < npad; k += RF_LANES) {
+    for (long k = 0; k < npad; k += RF_VL) {
         if (k % RF_JBLOCK == 0)
             for (int i = 0; i < RF_JSUMS; i++) acc[i] = (vf){0};
         vf x = vload(w->a[A_RX] + k), y = vload(w->a[A_RY] + k);
@@ -885,7 +895,7 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
                 acc[h] += J[0][i] * J[0][j] + J[1][i] * J[1][j] + J[2][i] * J[2][j];
         for (int i = 0; i < 6; i++)
             acc[111 + i] += J[0][i] * e[0] + J[1][i] * e[1] + J[2][i] * e[2];
-        if ((k + RF_LANES) % RF_JBLOCK == 0 || k + RF_LANES >= npad)
+        if ((k + RF_VL) % RF_JBLOCK == 0 || k + RF_VL >= npad)
             for (int i = 0; i < RF_JSUMS; i++) {
                 vf2 half;
                 memcpy(&half, &acc[i], sizeof half);
@@ -895,7 +905,7 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
     }
     for (int i = 0; i < RF_JSUMS; i++) {
         double s = 0;
-        for (int l = 0; l < RF_LANES / 2; l++) s += tot[i][0][l] + tot[i][1][l];
+        for (int l = 0; l < RF_VL / 2; l++) s += tot[i][0][l] + tot[i][1][l];
         out[i] = s;
     }
 }
@@ -969,38 +979,46 @@ static double off_axis_share(const double C[3][3])
 
 /* The frame's colour share over the fitted rendering's, on the pixels of the
  * last value pass (NaN when the rendering has no colour). */
-static double colour_ratio(const rf_work *w, const rf_fit *fit)
+RF_CLONES static double colour_ratio(const rf_work *w, const rf_fit *fit)
 {
+    /* one pass: the sums of o, m, o o^T and m m^T (double lanes), then
+     * C = sum x x^T - n mean mean^T; the observed values are exact, the
+     * means a few times the spread at most */
     long np = w->np;
-    double so[3] = {0, 0, 0}, sm[3] = {0, 0, 0}, Co[3][3], Cm[3][3];
-    memset(Co, 0, sizeof Co);
-    memset(Cm, 0, sizeof Cm);
-    const float *nx = w->a[A_NX], *ny = w->a[A_NY], *nz = w->a[A_NZ];
-    for (int pass = 0; pass < 2; pass++)
-        for (long k = 0; k < np; k++) {
-            double o[3], m[3];
-            for (int c = 0; c < 3; c++) {
-                const double *a = fit->coef[c];
-                double shade = a[0] + a[1] * nx[k] + a[2] * ny[k] + a[3] * nz[k];
-                m[c] = w->a[A_V0 + c][k] * shade + a[4];
-                o[c] = w->a[A_O0 + c][k];
+    vd acc[18];
+    for (int i = 0; i < 18; i++) acc[i] = (vd){0};
+    for (long k = 0; k < w->npad; k += RF_VL / 2) {
+        vd n0 = vdload(w->a[A_NX] + k), n1 = vdload(w->a[A_NY] + k), n2 = vdload(w->a[A_NZ] + k);
+        vd o[3], m[3];
+        for (int c = 0; c < 3; c++) {
+            const double *a = fit->coef[c];
+            /* the padding's texture is 0 and its offset a[4]: taken out below */
+            m[c] = vdload(w->a[A_V0 + c] + k) * (a[0] + a[1] * n0 + a[2] * n1 + a[3] * n2) + a[4];
+            o[c] = vdload(w->a[A_O0 + c] + k);
+        }
+        int h = 0;
+        for (int i = 0; i < 3; i++) {
+            acc[12 + i] += o[i];
+            acc[15 + i] += m[i];
+            for (int j = i; j < 3; j++, h++) {
+                acc[h] += o[i] * o[j];
+                acc[6 + h] += m[i] * m[j];
             }
-            if (pass == 0) {
-                for (int c = 0; c < 3; c++) {
-                    so[c] += o[c];
-                    sm[c] += m[c];
-                }
-                continue;
-            }
-            for (int c = 0; c < 3; c++) {
-                o[c] -= so[c] / np;
-                m[c] -= sm[c] / np;
-            }
-            for (int i = 0; i < 3; i++)
-                for (int j = 0; j < 3; j++) {
-                    Co[i][j] += o[i] * o[j];
-                    Cm[i][j] += m[i] * m[j];
-                }
+        }
+    }
+    double S[18], pad = (double)(w->npad - np), Co[3][3], Cm[3][3];
+    for (int i = 0; i < 18; i++) {
+        S[i] = 0;
+        for (int l = 0; l < RF_VL / 2; l++) S[i] += acc[i][l];
+    }
+    int h = 0;
+    for (int i = 0; i < 3; i++)
+        for (int j = i; j < 3; j++, h++) {
+            double bi = fit->coef[i][4], bj = fit->coef[j][4];
+            double mo = S[12 + i] * S[12 + j] / np;
+            double mm = (S[15 + i] - pad * bi) * (S[15 + j] - pad * bj) / np;
+            Co[i][j] = Co[j][i] = S[h] - mo;
+            Cm[i][j] = Cm[j][i] = S[6 + h] - pad * bi * bj - mm;
         }
     double sm_share = off_axis_share(Cm);
     return sm_share > 0 ? off_axis_share(Co) / sm_share : NAN;
