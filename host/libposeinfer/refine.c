@@ -413,8 +413,8 @@ typedef float vh __attribute__((vector_size(RF_VL / 2 * sizeof(float))));
 typedef double vd __attribute__((vector_size(RF_VL / 2 * sizeof(double))));
 typedef struct vf2 {
     vh lo, hi;
-} vf2;               /* a vf's halves */
-#define RF_JBLOCK 64 /* samples per float block of the Jacobian sums */
+} vf2;                /* a vf's halves */
+#define RF_JBLOCK 256 /* samples per float block of the Jacobian sums */
 
 /* RF_VL / 2 samples as doubles (p: a multiple of that) */
 static inline vd vdload(const float *p)
