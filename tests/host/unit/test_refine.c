@@ -229,12 +229,74 @@ static void euler_roundtrip(void **state)
     for (int i = 0; i < 3; i++) assert_true(fabs(back[i] - e[i]) < 1e-9);
 }
 
+/* One frame in every layout the refinement reads: BGRA gives the BGR
+ * answer to the bit, a gray frame the same answer as one channel or as three
+ * equal ones (the texture seen as its luma), close to the truth; and a sphere
+ * cut by the frame's edge (a partial set of samples) still refines. */
+static void frame_layouts_agree(void **state)
+{
+    (void)state;
+    char err[256];
+    uint8_t *tex = make_texture(7);
+    rf_image ti = {tex, TW, TH, 3, TW * 3};
+    rf_texture *t = rf_texture_new(&ti, err);
+    assert_non_null(t);
+    rf_work *w = rf_work_new();
+    double R[3][3], R0[3][3], e[3] = {-12.0, 7.5, 21.0}, e0[3] = {-11.6, 7.2, 21.3};
+    rf_euler_to_matrix(e, R);
+    rf_euler_to_matrix(e0, R0);
+    double cx = 311.4, cy = 262.2, r = r_true();
+    uint8_t *bgr = render(tex, R, cx, cy);
+    uint8_t *bgra = malloc((size_t)FW * FH * 4), *g3 = malloc((size_t)FW * FH * 3),
+            *g1 = malloc((size_t)FW * FH);
+    for (size_t i = 0; i < (size_t)FW * FH; i++) {
+        const uint8_t *p = bgr + 3 * i;
+        memcpy(bgra + 4 * i, p, 3);
+        bgra[4 * i + 3] = 255;
+        g1[i] = (uint8_t)((p[0] * 29 + p[1] * 150 + p[2] * 77 + 128) >> 8);
+        memset(g3 + 3 * i, g1[i], 3);
+    }
+    rf_image f_bgr = {bgr, FW, FH, 3, FW * 3}, f_bgra = {bgra, FW, FH, 4, FW * 4};
+    rf_image f_g3 = {g3, FW, FH, 3, FW * 3}, f_g1 = {g1, FW, FH, 1, FW};
+    rf_out a, b, c, d;
+    assert_int_equal(
+        rf_refine(t, w, &f_bgr, cx + 0.8, cy - 0.6, r, R0, F_PX, 1, &a, err, sizeof err), 0);
+    assert_int_equal(
+        rf_refine(t, w, &f_bgra, cx + 0.8, cy - 0.6, r, R0, F_PX, 1, &b, err, sizeof err), 0);
+    assert_memory_equal(a.R, b.R, sizeof a.R);
+    assert_true(a.residual == b.residual && a.colour == b.colour);
+    assert_true(geodesic_deg(a.R, R) < 0.1 && !isnan(a.colour));
+    assert_int_equal(
+        rf_refine(t, w, &f_g3, cx + 0.8, cy - 0.6, r, R0, F_PX, 1, &c, err, sizeof err), 0);
+    assert_int_equal(
+        rf_refine(t, w, &f_g1, cx + 0.8, cy - 0.6, r, R0, F_PX, 1, &d, err, sizeof err), 0);
+    assert_memory_equal(c.R, d.R, sizeof c.R);
+    assert_true(c.residual == d.residual && isnan(c.colour) && isnan(d.colour));
+    printf("  gray: %.4f deg off, residual %.4f\n", geodesic_deg(c.R, R), c.residual);
+    assert_true(geodesic_deg(c.R, R) < 0.2 && c.residual < 0.05);
+    free(bgr);
+    /* the sphere's right third outside the frame */
+    double ex = FW - 0.6 * r;
+    bgr = render(tex, R, ex, cy);
+    f_bgr.data = bgr;
+    assert_int_equal(
+        rf_refine(t, w, &f_bgr, ex + 0.8, cy - 0.6, r, R0, F_PX, 1, &a, err, sizeof err), 0);
+    printf("  cut by the edge: %.4f deg off, residual %.4f\n", geodesic_deg(a.R, R), a.residual);
+    assert_true(geodesic_deg(a.R, R) < 0.2);
+    free(bgr);
+    free(bgra);
+    free(g3);
+    free(g1);
+    rf_work_free(w);
+    rf_texture_free(t);
+    free(tex);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(refines_pose_and_circle),
-        cmocka_unit_test(refuses_bad_input),
-        cmocka_unit_test(base64),
+        cmocka_unit_test(refines_pose_and_circle), cmocka_unit_test(frame_layouts_agree),
+        cmocka_unit_test(refuses_bad_input),       cmocka_unit_test(base64),
         cmocka_unit_test(euler_roundtrip),
     };
     return cmocka_run_group_tests_name("refine", tests, NULL, NULL);
