@@ -12,8 +12,8 @@
  * The per-pixel work runs in float over arrays of the sampled pixels (one
  * array per quantity), in loops that the compiler vectorises; the sums that
  * decide a step (the photometric fit and its sum of squares) are taken in
- * double. The poses agree with the reference's double arithmetic within
- * about 1e-4 degrees (docs/refine.md, cost). */
+ * double. The poses agree with the double-precision arithmetic of the
+ * reference within about 2e-5 degrees (docs/refine.md, cost). */
 #define _DEFAULT_SOURCE /* madvise */
 #define _POSIX_C_SOURCE 200809L
 #include "refine.h"
