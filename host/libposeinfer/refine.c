@@ -623,21 +623,24 @@ RF_CLONES static void fit_sums(const rf_work *w, long npad, double q[3][20])
 
 /* A x = b for symmetric positive semi-definite A (k <= 6), with the tiny ridge
  * of training/refine.py _solve_spd; Gaussian elimination with partial pivoting. */
-static void solve_spd(int k, double A[6][6], const double *b, double *x)
+static void solve_spd_n(int k, double A[6][6], int m, const double *b, int bs, double *x, int xs)
 {
-    double M[6][7], tr = 0;
+    /* m right-hand sides b + r bs, solutions x + r xs (r < m <= 6): one
+     * elimination, each column as a lone solve would treat it */
+    double M[6][12], tr = 0;
+    int n = k + m;
     for (int i = 0; i < k; i++) tr += A[i][i];
     double ridge = 1e-9 * (tr / k > 1.0 ? tr / k : 1.0);
     for (int i = 0; i < k; i++) {
         for (int j = 0; j < k; j++) M[i][j] = A[i][j] + (i == j ? ridge : 0);
-        M[i][k] = b[i];
+        for (int r = 0; r < m; r++) M[i][k + r] = b[r * bs + i];
     }
     for (int c = 0; c < k; c++) {
         int p = c;
         for (int i = c + 1; i < k; i++)
             if (fabs(M[i][c]) > fabs(M[p][c])) p = i;
         if (p != c)
-            for (int j = 0; j <= k; j++) {
+            for (int j = 0; j < n; j++) {
                 double t = M[c][j];
                 M[c][j] = M[p][j];
                 M[p][j] = t;
@@ -646,14 +649,22 @@ static void solve_spd(int k, double A[6][6], const double *b, double *x)
         if (d == 0) d = 1e-300;
         for (int i = c + 1; i < k; i++) {
             double f = M[i][c] / d;
-            for (int j = c; j <= k; j++) M[i][j] -= f * M[c][j];
+            for (int j = c; j < n; j++) M[i][j] -= f * M[c][j];
         }
     }
-    for (int i = k - 1; i >= 0; i--) {
-        double s = M[i][k];
-        for (int j = i + 1; j < k; j++) s -= M[i][j] * x[j];
-        x[i] = s / (M[i][i] != 0 ? M[i][i] : 1e-300);
+    for (int r = 0; r < m; r++) {
+        double *xr = x + r * xs;
+        for (int i = k - 1; i >= 0; i--) {
+            double sum = M[i][k + r];
+            for (int j = i + 1; j < k; j++) sum -= M[i][j] * xr[j];
+            xr[i] = sum / (M[i][i] != 0 ? M[i][i] : 1e-300);
+        }
     }
+}
+
+static void solve_spd(int k, double A[6][6], const double *b, double *x)
+{
+    solve_spd_n(k, A, 1, b, 0, x, 0);
 }
 
 /* The samples of rows j0.. and columns i0.. (stride apart) within rm of
@@ -940,7 +951,7 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
     for (int c = 0; c < 3; c++) {
         double X[6][5], M[6][6];
         memcpy(M, fit->AtA[c], sizeof M);
-        for (int i = 0; i < 6; i++) solve_spd(5, M, JtA[c][i], X[i]);
+        solve_spd_n(5, M, 6, JtA[c][0], 5, X[0], 5);
         for (int i = 0; i < 6; i++)
             for (int j = i; j < 6; j++) {
                 double qq = 0;
