@@ -714,6 +714,32 @@ def _fine(img, dirs, cand, s, p):
     return cx, cy, r, _support(img, dirs, cx, cy, r, p)
 
 
+def _grow(img, dirs, fit, p):
+    """A weakly supported fit tried again from larger circles: where the limb is dark against a
+    dark backdrop, the fit can settle on a black texture band just inside it (a circle 2-5 %
+    small, off towards the bright side), whose edges are stronger than the rim's. From the same
+    centre with the radius fine_window_px and 2 fine_window_px larger, fine_passes - 1 passes
+    (as after the first) each; the best supported of the fit and these (the fit on ties) is
+    kept. Returns (cx, cy, r, support)."""
+    best = fit
+    for k in (1, 2):
+        cx, cy, r = fit[0], fit[1], fit[2] + k * p["fine_window_px"]
+        ok = True
+        for _ in range(p["fine_passes"] - 1):
+            win = p["fine_window_px"] + p["fine_window_frac"] * r
+            f = _fit_rays(_ray_edges(img, dirs, cx, cy, r, win, p), dirs, cx, cy, cx, cy, r, p)
+            if f is None or not f[2] > 1.0:
+                ok = False
+                break
+            cx, cy, r, _ = f
+        if not ok:
+            continue
+        sup = _support(img, dirs, cx, cy, r, p)
+        if sup > best[3]:
+            best = (cx, cy, r, sup)
+    return best
+
+
 def _support(img, dirs, cx, cy, r, p):
     """Fraction of all rays from (cx, cy) whose colour step has a local maximum within inlier_px
     of radius r of at least support_edge_min and support_ratio times the ray's median step from
@@ -755,8 +781,13 @@ def _find_sphere_v2(frame, p, camera=None):
     rmin, rmax = radius_range(h, w, p, camera)
     cands, s = _coarse(frame, p, rmin, rmax)
     dirs = _ray_dirs(p["rays"])
-    found = [f for f in (_fine(frame, dirs, c, s, p) for c in cands)
-             if f is not None and f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1]
+    fits = [f for f in (_fine(frame, dirs, c, s, p) for c in cands) if f is not None]
+    if fits:
+        # the best supported fit (first on ties), when weakly supported, tried from larger circles
+        ib = min(range(len(fits)), key=lambda i: (-fits[i][3], i))
+        if fits[ib][3] < (1.0 + p["min_support"]) / 2.0:
+            fits[ib] = _grow(frame, dirs, fits[ib], p)
+    found = [f for f in fits if f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1]
     if not found:
         raise NoSphere("no sphere found in frame")
     # the best supported circle is the sphere; another well supported one of about its size,

@@ -1062,6 +1062,35 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
     return true;
 }
 
+// A weakly supported fit tried again from larger circles (preprocess.py
+// _grow): from the same centre with the radius fine_window_px and 2
+// fine_window_px larger, fine_passes - 1 passes each; the best supported of
+// the fit and these (the fit on ties) is kept.
+void grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit)
+{
+    thread_local RayEdges re;
+    const Found start = *fit;
+    for (int k = 1; k <= 2; k++) {
+        double cx = start.cx, cy = start.cy, r = start.r + k * p->fine_window_px;
+        bool ok = true;
+        for (int ps = 0; ps < p->fine_passes - 1; ps++) {
+            const double win = p->fine_window_px + p->fine_window_frac * r;
+            ray_edges(f, dirs, cx, cy, r, win, p->ray_edge_min, 0.0, re);
+            double sx = cx, sy = cy, sr = r;
+            if (!fit_rays(re, dirs, cx, cy, &sx, &sy, &sr, p) || !(sr > 1.0)) {
+                ok = false;
+                break;
+            }
+            cx = sx;
+            cy = sy;
+            r = sr;
+        }
+        if (!ok) continue;
+        const double sup = support(f, dirs, cx, cy, r, p);
+        if (sup > fit->support) *fit = {cx, cy, r, sup};
+    }
+}
+
 double rim_outside(double cx, double cy, double r, int h, int w)
 {
     const std::vector<double> d = ray_dirs(256);
@@ -1152,13 +1181,21 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, &s);
     const std::vector<double> dirs = ray_dirs(p->rays);
     const Frame f = {bgr, stride, w, h};
-    std::vector<Found> fits;
+    std::vector<Found> all, fits;
     for (const Cand &c : cands) {
         Found fo;
-        if (fine(f, dirs, c, s, p, &fo) && fo.support >= p->min_support && rmin * 0.9 <= fo.r &&
-            fo.r <= rmax * 1.1)
-            fits.push_back(fo);
+        if (fine(f, dirs, c, s, p, &fo)) all.push_back(fo);
     }
+    // the best supported fit (first on ties), when weakly supported, tried from larger circles
+    if (!all.empty()) {
+        size_t ib = 0;
+        for (size_t i = 1; i < all.size(); i++)
+            if (all[i].support > all[ib].support) ib = i;
+        if (all[ib].support < (1.0 + p->min_support) / 2.0) grow(f, dirs, p, &all[ib]);
+    }
+    for (const Found &fo : all)
+        if (fo.support >= p->min_support && rmin * 0.9 <= fo.r && fo.r <= rmax * 1.1)
+            fits.push_back(fo);
     // the best supported circle (first on ties) is the sphere
     long ia = -1;
     for (size_t i = 0; i < fits.size(); i++)
