@@ -842,7 +842,13 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
         vf inv = vload(w->a[A_INV] + k), t = vload(w->a[A_T] + k);
         vf n0 = vload(w->a[A_NX] + k), n1 = vload(w->a[A_NY] + k), n2 = vload(w->a[A_NZ] + k);
         vf e0 = x * inv, e1 = y * inv, e2 = -inv; /* the ray's direction d */
-        vf ind = 1.0f / (n0 * e0 + n1 * e1 + n2 * e2);
+        /* n.d = -cos of the angle of incidence: about -0.4 at the samples'
+         * rim; where a step has moved the circle so far that a ray only
+         * grazes or misses the sphere (n.d near 0), the derivatives are not
+         * finite in float: such a sample takes no part in the step (J = 0) */
+        vf nd = n0 * e0 + n1 * e1 + n2 * e2;
+        vi meets = vneg(nd + 1e-3f);
+        vf ind = vsel(meets, 1.0f / nd, (vf){0});
         /* d n / d (cx, cy, r) (training/refine.py normals_and_derivs):
          * dd = (dq - d (d.dq)) / L, dt = -(n.dO + t n.dd) / (n.d), dn = dO + dt d + t dd */
         vf dn[3][3];
@@ -893,7 +899,8 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
         for (int c = 0; c < 3; c++) {
             vf tv = vload(w->a[A_V0 + c] + k);
             vf sh = a[c][0] + a[c][1] * n0 + a[c][2] * n1 + a[c][3] * n2;
-            vf al = sh * vload(w->a[A_DU0 + c] + k), be = sh * vload(w->a[A_DV0 + c] + k);
+            vf al = vsel(meets, sh * vload(w->a[A_DU0 + c] + k), (vf){0});
+            vf be = vsel(meets, sh * vload(w->a[A_DV0 + c] + k), (vf){0});
             e[c] = vload(w->a[A_O0 + c] + k) - (tv * sh + a[c][4]);
             for (int i = 0; i < 6; i++) J[c][i] = al * JP[i] + be * JQ[i];
             vf ab[5] = {tv, tv * n0, tv * n1, tv * n2, (vf){0} + 1.0f};
