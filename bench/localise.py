@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from training import preprocess as pp  # noqa: E402
 from training import rigcomposite as rc  # noqa: E402
+from sim.camera import from_truth  # noqa: E402
 
 
 def composite_frames(n, seed, texture, out=None):
@@ -77,10 +78,7 @@ def truth_frames(path):
         cam = None
         sc = (t.get("scene") or {}).get("camera")
         if sc:
-            pixel = 0.0096
-            cam = {"width": img.shape[1], "height": img.shape[0], "focal_mm": sc["focal_px"] * pixel,
-                   "pixel_mm": pixel, "distance_mm": sc["distance_mm"], "sphere_diameter_mm": 40.0,
-                   "principal_px": sc["principal_px"], "distortion": sc["distortion"]}
+            cam = {"width": img.shape[1], "height": img.shape[0], **from_truth(sc)}
         yield img, (cx - 0.5, cy - 0.5, r), cam
 
 
@@ -91,9 +89,7 @@ def _one(job):
     cam = cam_file
     sc = (t.get("scene") or {}).get("camera")
     if cam is None and sc:
-        cam = {"width": img.shape[1], "height": img.shape[0], "focal_mm": sc["focal_px"] * 0.0096,
-               "pixel_mm": 0.0096, "distance_mm": sc["distance_mm"], "sphere_diameter_mm": 40.0,
-               "principal_px": sc["principal_px"], "distortion": sc["distortion"]}
+        cam = {"width": img.shape[1], "height": img.shape[0], **from_truth(sc)}
     p = pp.params(os.environ.get("SPHEREPOSE_PP_OVERRIDE") or None)
     kind = (t.get("scene") or {}).get("refuse")
     try:
