@@ -250,7 +250,8 @@ def write_judging_model(path):
     """The test model carrying a texture and thresholds (docs/refine.md), so that poseinfer's
     library refines and judges every frame. The texture is nearly uniform: a shaded disc
     (sphere_frame(shaded=True)) is explained at any pose (residual about 0.05), a striped one is
-    not (about 0.99). The range margin keeps the test network's arbitrary angles in range, so the
+    not (about 0.99). The range margin keeps the test network's arbitrary angles in range, and the
+    convergence limit lets a pose the uniform texture cannot pin down count as settled, so the
     residual alone decides."""
     import json
     import make_model
@@ -260,7 +261,8 @@ def write_judging_model(path):
     small = np.random.default_rng(3).standard_normal((8, 16, 3)) * 40 + 128
     tex = cv2.resize(small.clip(0, 255).astype(np.uint8), (1024, 512), interpolation=cv2.INTER_CUBIC)
     for k, v in {refine.META_TEXTURE: refine.texture_png_b64(tex),
-                 refine.META_CONFIDENCE: json.dumps({"residual_max": 0.5, "range_margin_deg": 180})}.items():
+                 refine.META_CONFIDENCE: json.dumps({"residual_max": 0.5, "range_margin_deg": 180,
+                                                        "converge_max_deg": 180})}.items():
         p = m.metadata_props.add()
         p.key, p.value = k, v
     onnx.save(m, str(path))
