@@ -9,10 +9,6 @@
 #include <math.h>
 #include <stdio.h>
 
-#ifndef M_PI
-#define M_PI 3.14159265358979323846
-#endif
-
 void rf_conf_defaults(rf_conf *c)
 {
     c->residual_max = 0.25;
@@ -92,49 +88,6 @@ int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_js
             c->ranges[i][1] = v->items[1].number;
         }
         json_free(&root);
-    }
-    return 0;
-}
-
-double rf_rotation_deg(const double A[3][3], const double B[3][3])
-{
-    /* |A - B| (Frobenius) = 2 sqrt(2) sin(t / 2): exact near 0, where acos of
-     * the trace is not */
-    double d = 0;
-    for (int i = 0; i < 3; i++)
-        for (int j = 0; j < 3; j++) d += (A[i][j] - B[i][j]) * (A[i][j] - B[i][j]);
-    double s = sqrt(d) / (2.0 * sqrt(2.0));
-    return 2.0 * asin(s > 1 ? 1 : s) * 180.0 / M_PI;
-}
-
-int rf_refine_checked(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
-                      double r, const double R0[3][3], double focal_px, int steps,
-                      double converge_max_deg, rf_out *out, double *moved, char *err, size_t errlen)
-{
-    *moved = NAN;
-    if (rf_refine(t, w, frame, cx, cy, r, R0, focal_px, steps, out, err, errlen) < 0) return -1;
-    if (!steps) return 0;
-    /* one pass of the steps does not reach the minimum from several degrees
-     * off: a gray frame (the network was trained on colour) and a start the
-     * first pass moved far are refined again from the answer */
-    double shift = hypot(out->cx - cx, out->cy - cy), dr = fabs(out->r - r);
-    if (dr > shift) shift = dr;
-    if (!isnan(out->colour) && shift <= RF_CHECK_PX && rf_rotation_deg(out->R, R0) <= RF_CHECK_DEG)
-        return 0;
-    for (int n = 1; n < RF_CHECK_PASSES; n++) {
-        rf_out next;
-        char perr[RF_TEXTURE_ERR_LEN];
-        /* a circle that ran off (another texture): the answer so far, not converged */
-        if (rf_refine(t, w, frame, out->cx, out->cy, out->r, out->R, focal_px, steps, &next, perr,
-                      sizeof perr) < 0 ||
-            !isfinite(next.cx) || !isfinite(next.cy) || !isfinite(next.r)) {
-            *moved = INFINITY;
-            return 0;
-        }
-        *moved = rf_rotation_deg(next.R, out->R);
-        next.iterations += out->iterations;
-        *out = next;
-        if (*moved <= converge_max_deg) break;
     }
     return 0;
 }

@@ -8,14 +8,6 @@
 
 #include <stddef.h>
 
-/* The convergence check (training/refine.py CHECK_*, refine_checked): a gray
- * frame, or an answer whose first pass moved the circle's centre or radius
- * more than RF_CHECK_PX pixels or the pose more than RF_CHECK_DEG from the
- * network's, is refined again from itself, RF_CHECK_PASSES passes at most. */
-#define RF_CHECK_PASSES 4
-#define RF_CHECK_PX     2.0
-#define RF_CHECK_DEG    2.5
-
 /* Confidence: thresholds (metadata spherepose.confidence) and the model's
  * ranges (spherepose.ranges). */
 typedef struct rf_conf {
@@ -33,18 +25,6 @@ void rf_conf_defaults(rf_conf *c);
 /* Parse either JSON text (NULL: keep the defaults). -1 with err naming the key. */
 int rf_conf_parse(rf_conf *c, const char *confidence_json, const char *ranges_json, char *err,
                   size_t errlen);
-
-/* The angle of the rotation from B to A, degrees. */
-double rf_rotation_deg(const double A[3][3], const double B[3][3]);
-
-/* rf_refine and the convergence check (training/refine.py refine_checked):
- * out is the last pass's, *moved that pass's rotation in degrees (NaN when
- * the answer was not checked, and with steps = 0); passes stop at one that
- * moves at most converge_max_deg. Returns rf_refine's 0 or -1 with err. */
-int rf_refine_checked(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
-                      double r, const double R0[3][3], double focal_px, int steps,
-                      double converge_max_deg, rf_out *out, double *moved, char *err,
-                      size_t errlen);
 
 /* 1 when confident, else 0 with the reason in note (training/refine.py judge);
  * colour: rf_out.colour (NaN: a gray frame, no colour check, and when refined

@@ -300,9 +300,9 @@ def test_c_parameters_match(tmp_path):
 
 
 def test_c_check_parameters_match():
-    """host/libposeinfer/confidence.h copies the convergence check's parameters and the default
+    """host/libposeinfer/refine.h copies the convergence check's parameters and the default
     converge_max_deg."""
-    h = (REPO / "host" / "libposeinfer" / "confidence.h").read_text()
+    h = (REPO / "host" / "libposeinfer" / "refine.h").read_text()
     defs = {line.split()[1]: line.split()[2] for line in h.splitlines() if line.startswith("#define RF_CHECK_")}
     assert int(defs["RF_CHECK_PASSES"]) == rf.CHECK_PASSES
     assert float(defs["RF_CHECK_PX"]) == rf.CHECK_PX and float(defs["RF_CHECK_DEG"]) == rf.CHECK_DEG
