@@ -531,6 +531,7 @@ static int measure_pose(const rig_args *a, rig_run *r, int i)
     row->est[1] = res.y;
     row->est[2] = res.z;
     row->preprocess_ms = res.preprocess_ms;
+    row->locate_ms = res.locate_ms;
     row->infer_ms = res.infer_ms;
     if (res.has_confidence) {
         row->has_conf = 1;

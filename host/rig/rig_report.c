@@ -67,7 +67,8 @@ int rig_write_csv(const char *path, const rig_row *rows, int n, char *err)
     fputs("index,cmd_x,cmd_y,cmd_z,mpos_x,mpos_y,mpos_z,wpos_x,wpos_y,wpos_z,"
           "est_x,est_y,est_z,err_x,err_y,err_z,geodesic,"
           "sphere_cx,sphere_cy,sphere_r,confident,residual,"
-          "move_ms,settle_ms,grab_ms,decode_ms,preprocess_ms,infer_ms,refine_ms,pose_ms,status,"
+          "move_ms,settle_ms,grab_ms,decode_ms,preprocess_ms,locate_ms,infer_ms,refine_ms,pose_ms,"
+          "status,"
           "note,frame\n",
           f);
     for (i = 0; i < n; i++) {
@@ -89,8 +90,9 @@ int rig_write_csv(const char *path, const rig_row *rows, int n, char *err)
         } else {
             fputs(",,", f);
         }
-        fprintf(f, "%.1f,%.1f,%.1f,%.2f,%.2f,%.2f,%.2f,%.1f,", r->move_ms, r->settle_ms, r->grab_ms,
-                r->decode_ms, r->preprocess_ms, r->infer_ms, r->refine_ms, r->pose_ms);
+        fprintf(f, "%.1f,%.1f,%.1f,%.2f,%.2f,%.2f,%.2f,%.2f,%.1f,", r->move_ms, r->settle_ms,
+                r->grab_ms, r->decode_ms, r->preprocess_ms, r->locate_ms, r->infer_ms, r->refine_ms,
+                r->pose_ms);
         csv_text(f, r->status);
         fputc(',', f);
         csv_text(f, r->ok && r->has_conf ? r->note : "");
@@ -267,6 +269,7 @@ int rig_write_summary_md(const char *path, const rig_run_info *info, const rig_r
         {"grab", offsetof(rig_row, grab_ms)},
         {"decode", offsetof(rig_row, decode_ms)},
         {"preprocess", offsetof(rig_row, preprocess_ms)},
+        {"of it, localisation", offsetof(rig_row, locate_ms)},
         {"inference", offsetof(rig_row, infer_ms)},
         {"refinement", offsetof(rig_row, refine_ms)},
         {"whole pose", offsetof(rig_row, pose_ms)},

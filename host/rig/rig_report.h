@@ -28,7 +28,8 @@ typedef struct {
     int confident;           /* with has_conf: 1 confident, 0 flagged */
     double residual;         /* with has_conf: alignment residual (NaN: refinement could not run) */
     char note[RIG_NOTE_LEN]; /* with has_conf and not confident: why, else "" */
-    double move_ms, settle_ms, grab_ms, decode_ms, preprocess_ms, infer_ms, refine_ms, pose_ms;
+    double move_ms, settle_ms, grab_ms, decode_ms, preprocess_ms, locate_ms, infer_ms, refine_ms,
+        pose_ms;
     int ok;                      /* 1: estimate recorded; 0: see status */
     char status[RIG_STATUS_LEN]; /* "ok" or the reason this pose has no estimate */
     char frame[128];             /* saved frame, relative to the output folder, or "" */

@@ -507,6 +507,7 @@ def test_poserig_flagged_pose_reported_apart(tmp_path, fake, camera, judging_mod
         assert float(rows[i]["residual"]) < 0.5 and rows[i]["note"] == ""
     assert rows[4]["residual"] == "" and rows[4]["note"] == ""
     assert float(rows[0]["refine_ms"]) > 0
+    assert 0 <= float(rows[0]["locate_ms"]) <= float(rows[0]["preprocess_ms"])
 
     lines = r.stdout.splitlines()
     assert lines[0].startswith("Error analysis of 3 confident pose(s) (degrees; 5 planned, 1 failed, 1 flagged")
