@@ -780,12 +780,23 @@ def _find_sphere_v2(frame, p, camera=None):
         _check_size(frame, camera)
     rmin, rmax = radius_range(h, w, p, camera)
     cands, s = _coarse(frame, p, rmin, rmax)
+    decisive = (1.0 + p["min_support"]) / 2.0
     dirs = _ray_dirs(p["rays"])
-    fits = [f for f in (_fine(frame, dirs, c, s, p) for c in cands) if f is not None]
+    fits = []
+    for c in cands:
+        # a peak whose centre lies inside a decisively supported fit is that circle again or
+        # the texture's arcs inside it: neither a better sphere nor a second one (the check below
+        # passes over circles whose centre lies inside the other), so it is not refined
+        if any(f[3] >= decisive and (c[0] - f[0]) * (c[0] - f[0]) + (c[1] - f[1]) * (c[1] - f[1]) < f[2] * f[2]
+               for f in fits):
+            continue
+        f = _fine(frame, dirs, c, s, p)
+        if f is not None:
+            fits.append(f)
     if fits:
         # the best supported fit (first on ties), when weakly supported, tried from larger circles
         ib = min(range(len(fits)), key=lambda i: (-fits[i][3], i))
-        if fits[ib][3] < (1.0 + p["min_support"]) / 2.0:
+        if fits[ib][3] < decisive:
             fits[ib] = _grow(frame, dirs, fits[ib], p)
     found = [f for f in fits if f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1]
     if not found:

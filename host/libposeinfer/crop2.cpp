@@ -1182,7 +1182,17 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     const std::vector<double> dirs = ray_dirs(p->rays);
     const Frame f = {bgr, stride, w, h};
     std::vector<Found> all, fits;
+    const double decisive = (1.0 + p->min_support) / 2.0;
     for (const Cand &c : cands) {
+        // a peak whose centre lies inside a decisively supported fit is that circle again or
+        // the texture's arcs inside it: neither a better sphere nor a second one (the check
+        // below passes over circles whose centre lies inside the other), so it is not refined
+        bool inside = false;
+        for (const Found &a : all)
+            inside = inside ||
+                     (a.support >= decisive &&
+                      (c.cx - a.cx) * (c.cx - a.cx) + (c.cy - a.cy) * (c.cy - a.cy) < a.r * a.r);
+        if (inside) continue;
         Found fo;
         if (fine(f, dirs, c, s, p, &fo)) all.push_back(fo);
     }
@@ -1191,7 +1201,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         size_t ib = 0;
         for (size_t i = 1; i < all.size(); i++)
             if (all[i].support > all[ib].support) ib = i;
-        if (all[ib].support < (1.0 + p->min_support) / 2.0) grow(f, dirs, p, &all[ib]);
+        if (all[ib].support < decisive) grow(f, dirs, p, &all[ib]);
     }
     for (const Found &fo : all)
         if (fo.support >= p->min_support && rmin * 0.9 <= fo.r && fo.r <= rmax * 1.1)
