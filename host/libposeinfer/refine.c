@@ -24,17 +24,25 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/mman.h>
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#include <immintrin.h>
+#endif
 
 #ifndef M_PI
 #define M_PI 3.14159265358979323846
 #endif
 
 /* The per-pixel loops are compiled three ways and picked at run time. Every
- * version does the same IEEE operations in the same order (no fused
- * multiply-add in ISO C mode, no sums reordered: the lanes are written out),
- * so all give the same bits. */
+ * version does the same operations in the same order (no sums reordered: the
+ * lanes are written out); the AVX-512 version fuses a multiply and an add
+ * where the expression has one (ISO C mode fuses nothing unless told, and
+ * x86-64's baseline has no fused multiply-add), so its bits differ from the
+ * other two's by rounding (poses within about 1e-5 degrees: docs/refine.md,
+ * cost). */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define RF_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#define RF_X86_GCC 1
+#define RF_CLONES \
+    __attribute__((target_clones("avx512f", "avx2", "default"), optimize("fp-contract=fast")))
 #else
 #define RF_CLONES
 #endif
@@ -540,6 +548,37 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
         *(vf *)(w->a[A_T] + k) = t;
     }
 }
+#ifdef RF_X86_GCC
+/* The bilinear lookups below, 16 samples at a time with the AVX-512 gather:
+ * the loads of a block go out together, which keeps the memory busy (after
+ * the network has run, the texture is mostly out of the caches) without a
+ * prefetch pass; the arithmetic is the loop's, lane by lane. */
+__attribute__((target("avx512f"), optimize("fp-contract=fast"))) static void
+gather_pass_avx512(rf_work *w, long n, const float *restrict tex, int rs)
+{
+    const int32_t *restrict off = w->off;
+    const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
+    for (long k = 0; k < n; k += 16) {
+        __m512i o = _mm512_load_si512((const void *)(off + k));
+        __m512 a = _mm512_load_ps(fx + k), b = _mm512_load_ps(fy + k);
+        for (int c = 0; c < 3; c++) {
+            __m512i oc = _mm512_add_epi32(o, _mm512_set1_epi32(c));
+            __m512i od = _mm512_add_epi32(oc, _mm512_set1_epi32(rs));
+            __m512 a00 = _mm512_i32gather_ps(oc, tex, 4), a10 = _mm512_i32gather_ps(oc, tex + 3, 4);
+            __m512 a01 = _mm512_i32gather_ps(od, tex, 4), a11 = _mm512_i32gather_ps(od, tex + 3, 4);
+            __m512 d0 = _mm512_sub_ps(a10, a00), d1 = _mm512_sub_ps(a11, a01);
+            __m512 top = _mm512_add_ps(a00, _mm512_mul_ps(a, d0));
+            __m512 bot = _mm512_add_ps(a01, _mm512_mul_ps(a, d1));
+            __m512 dv = _mm512_sub_ps(bot, top);
+            _mm512_store_ps(w->a[A_V0 + c] + k, _mm512_add_ps(top, _mm512_mul_ps(b, dv)));
+            _mm512_store_ps(w->a[A_DU0 + c] + k,
+                            _mm512_add_ps(d0, _mm512_mul_ps(b, _mm512_sub_ps(d1, d0))));
+            _mm512_store_ps(w->a[A_DV0 + c] + k, dv);
+        }
+    }
+}
+#endif
+
 /* The bilinear lookups (sample's second half): values and their derivatives
  * along the texel axes, per channel. */
 static void gather_pass(rf_work *w, long n, const float *restrict tex, int rs)
@@ -772,13 +811,20 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     for (int i = 0; i < 9; i++) Rf[i] = (float)R[i / 3][i % 3];
     geometry_pass(w, npad, Rf, (float)(cx - w->c0x), (float)(cy - w->c0y), (float)(1.0 / f),
                   (float)dist, tw, th);
-    /* ask for every sample's two texel rows ahead: after the network has run
-     * the texture is mostly out of the caches */
-    for (long k = 0; k < np; k++) {
-        __builtin_prefetch(tex + w->off[k]);
-        __builtin_prefetch(tex + w->off[k] + rs);
+#ifdef RF_X86_GCC
+    if (__builtin_cpu_supports("avx512f"))
+        gather_pass_avx512(w, npad, tex, rs);
+    else
+#endif
+    {
+        /* ask for every sample's two texel rows ahead: after the network has
+         * run the texture is mostly out of the caches */
+        for (long k = 0; k < np; k++) {
+            __builtin_prefetch(tex + w->off[k]);
+            __builtin_prefetch(tex + w->off[k] + rs);
+        }
+        gather_pass(w, npad, tex, rs);
     }
-    gather_pass(w, npad, tex, rs);
     if (w->gray) luma_pass(w, npad);
     /* the padding takes no part: no texture there */
     for (int m = A_V0; m <= A_DV2; m++)
