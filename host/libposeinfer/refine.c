@@ -55,11 +55,16 @@
 
 struct rf_texture {
     int w[RF_LEVELS], h[RF_LEVELS];
-    /* [h + 2][w + 2][3], BGR, exact (8-bit values / 4^k); a border of one
-     * texel (the longitude wrapped, the latitude clamped) so that a bilinear
-     * lookup reads texels (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1)
-     * without a test */
-    float *px[RF_LEVELS];
+    /* [h + 2][w + 2][4] 16-bit B, G, R, 0 (8 bytes a texel: one 64-bit load;
+     * a third less memory than three floats, and a texel pair seldom spans
+     * two cache lines); a texel's value is px * scale. A level's values are
+     * 8-bit values / 4^k (2x2 box means), so px = value * 4^k is exact for
+     * k <= 4 (the scale a power of two), which covers textures up to 4096
+     * wide; wider ones are rounded to 1/256. A border of one texel (the
+     * longitude wrapped, the latitude clamped) so that a bilinear lookup reads
+     * texels (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1) without a test. */
+    uint16_t *px[RF_LEVELS];
+    float scale[RF_LEVELS];
 };
 
 /* The arrays of the sampled pixels (float, RF_LANES-padded, one block). */
@@ -303,16 +308,23 @@ rf_texture *rf_texture_new(const rf_image *img, char *err)
      * (training/refine.py sample clamps the latitude) */
     for (int l = 0; l < RF_LEVELS; l++) {
         int lw = t->w[l], lh = t->h[l];
-        size_t rs = (size_t)(lw + 2) * 3;
-        float *p = tex_alloc(rs * (lh + 2) * sizeof(float));
+        size_t rs = (size_t)(lw + 2) * 4;
+        uint16_t *p = tex_alloc(rs * (lh + 2) * sizeof(uint16_t));
         if (!p) goto oom;
+        /* 4^k, k the 2x2 reductions from the given texture to this level */
+        float mul = 1;
+        for (int ww = img->width; ww > t->w[l] && mul < 256; ww /= 2) mul *= 4;
+        t->scale[l] = 1.0f / mul;
         for (int j = -1; j <= lh; j++) {
             int sj = j < 0 ? 0 : j >= lh ? lh - 1 : j;
-            float *row = p + (size_t)(j + 1) * rs;
+            uint16_t *row = p + (size_t)(j + 1) * rs;
             const float *src = lv[l] + (size_t)sj * lw * 3;
-            memcpy(row + 3, src, (size_t)lw * 3 * sizeof(float));
-            memcpy(row, src + (size_t)(lw - 1) * 3, 3 * sizeof(float));
-            memcpy(row + (size_t)(lw + 1) * 3, src, 3 * sizeof(float));
+            for (int i = -1; i <= lw; i++) {
+                int si = i < 0 ? lw - 1 : i >= lw ? 0 : i;
+                for (int c = 0; c < 3; c++)
+                    row[(size_t)(i + 1) * 4 + c] = (uint16_t)lrintf(src[(size_t)si * 3 + c] * mul);
+                row[(size_t)(i + 1) * 4 + 3] = 0;
+            }
         }
         t->px[l] = p;
     }
@@ -506,7 +518,7 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
 {
     const float dist2 = dist * dist, kw = (float)(tw / (2 * M_PI)), kh = (float)(th / M_PI);
     const float u0 = (float)(tw / 2.0 - 0.5), v0 = (float)(th / 2.0 - 0.5);
-    const int rs = (tw + 2) * 3;
+    const int rs = tw + 2; /* texels a row */
     for (long k = 0; k < n; k += RF_VL) {
         vf x = (vload(w->a[A_X] + k) - dcx) * inv_f, y = -(vload(w->a[A_Y] + k) - dcy) * inv_f;
         vf p2 = x * x + y * y, inv = vrsqrt(p2 + 1.0f), inv2 = inv * inv;
@@ -534,7 +546,7 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
         /* ut lies in [-0.5, tw - 0.5], vt in [-0.5, th - 0.5]: the border */
         i0 = vimin(vimax(i0, -1), tw - 1);
         j0 = vimin(vimax(j0, -1), th - 1);
-        *(vi *)(w->off + k) = (j0 + 1) * rs + (i0 + 1) * 3;
+        *(vi *)(w->off + k) = (j0 + 1) * rs + (i0 + 1);
         vf krho = kw / rho2;
         *(vf *)(w->a[A_DUT0] + k) = bz * krho;
         *(vf *)(w->a[A_DUT2] + k) = -bx * krho;
@@ -549,30 +561,54 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
     }
 }
 #ifdef RF_X86_GCC
-/* The bilinear lookups below, 16 samples at a time with the AVX-512 gather:
- * the loads of a block go out together, which keeps the memory busy (after
- * the network has run, the texture is mostly out of the caches) without a
- * prefetch pass; the arithmetic is the loop's, lane by lane. */
-__attribute__((target("avx512f"), optimize("fp-contract=fast"))) static void
-gather_pass_avx512(rf_work *w, long n, const float *restrict tex, int rs)
+/* The bilinear lookups below, 16 samples at a time with AVX-512: each
+ * texel's three channels in one 64-bit load, the loads of a block gathered
+ * together, which keeps the memory busy (after the network has run, the
+ * texture is mostly out of the caches) without a prefetch pass; the
+ * arithmetic is the loop's, lane by lane. */
+__attribute__((target("avx512f,avx512bw"))) static void
+gather_pass_avx512(rf_work *w, long n, const uint16_t *restrict tex, int rs, float scale)
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
+    const long long *base = (const long long *)tex;
+    __m512i pick[3]; /* word c of the 8 texels of each half, in sample order */
+    for (int c = 0; c < 3; c++) {
+        short ix[32];
+        for (int l = 0; l < 32; l++)
+            ix[l] = (short)(l < 8 ? 4 * l + c : l < 16 ? 32 + 4 * (l - 8) + c : 0);
+        pick[c] = _mm512_loadu_si512(ix);
+    }
+    const __m512 sc = _mm512_set1_ps(scale);
+    const __m256i d10 = _mm256_set1_epi32(1), d01 = _mm256_set1_epi32(rs),
+                  d11 = _mm256_set1_epi32(rs + 1);
     for (long k = 0; k < n; k += 16) {
-        __m512i o = _mm512_load_si512((const void *)(off + k));
+        __m256i lo = _mm256_load_si256((const __m256i *)(off + k)),
+                hi = _mm256_load_si256((const __m256i *)(off + k + 8));
+        __m512i g[4][2];
+        g[0][0] = _mm512_i32gather_epi64(lo, base, 8);
+        g[0][1] = _mm512_i32gather_epi64(hi, base, 8);
+        g[1][0] = _mm512_i32gather_epi64(_mm256_add_epi32(lo, d10), base, 8);
+        g[1][1] = _mm512_i32gather_epi64(_mm256_add_epi32(hi, d10), base, 8);
+        g[2][0] = _mm512_i32gather_epi64(_mm256_add_epi32(lo, d01), base, 8);
+        g[2][1] = _mm512_i32gather_epi64(_mm256_add_epi32(hi, d01), base, 8);
+        g[3][0] = _mm512_i32gather_epi64(_mm256_add_epi32(lo, d11), base, 8);
+        g[3][1] = _mm512_i32gather_epi64(_mm256_add_epi32(hi, d11), base, 8);
         __m512 a = _mm512_load_ps(fx + k), b = _mm512_load_ps(fy + k);
         for (int c = 0; c < 3; c++) {
-            __m512i oc = _mm512_add_epi32(o, _mm512_set1_epi32(c));
-            __m512i od = _mm512_add_epi32(oc, _mm512_set1_epi32(rs));
-            __m512 a00 = _mm512_i32gather_ps(oc, tex, 4), a10 = _mm512_i32gather_ps(oc, tex + 3, 4);
-            __m512 a01 = _mm512_i32gather_ps(od, tex, 4), a11 = _mm512_i32gather_ps(od, tex + 3, 4);
+            __m512 v[4];
+            for (int q = 0; q < 4; q++) {
+                __m512i x = _mm512_permutex2var_epi16(g[q][0], pick[c], g[q][1]);
+                v[q] = _mm512_mul_ps(
+                    _mm512_cvtepi32_ps(_mm512_cvtepu16_epi32(_mm512_castsi512_si256(x))), sc);
+            }
+            __m512 a00 = v[0], a10 = v[1], a01 = v[2], a11 = v[3];
             __m512 d0 = _mm512_sub_ps(a10, a00), d1 = _mm512_sub_ps(a11, a01);
-            __m512 top = _mm512_add_ps(a00, _mm512_mul_ps(a, d0));
-            __m512 bot = _mm512_add_ps(a01, _mm512_mul_ps(a, d1));
+            /* fused as the other AVX-512 loops fuse (the scaling is exact) */
+            __m512 top = _mm512_fmadd_ps(a, d0, a00), bot = _mm512_fmadd_ps(a, d1, a01);
             __m512 dv = _mm512_sub_ps(bot, top);
-            _mm512_store_ps(w->a[A_V0 + c] + k, _mm512_add_ps(top, _mm512_mul_ps(b, dv)));
-            _mm512_store_ps(w->a[A_DU0 + c] + k,
-                            _mm512_add_ps(d0, _mm512_mul_ps(b, _mm512_sub_ps(d1, d0))));
+            _mm512_store_ps(w->a[A_V0 + c] + k, _mm512_fmadd_ps(b, dv, top));
+            _mm512_store_ps(w->a[A_DU0 + c] + k, _mm512_fmadd_ps(b, _mm512_sub_ps(d1, d0), d0));
             _mm512_store_ps(w->a[A_DV0 + c] + k, dv);
         }
     }
@@ -580,8 +616,8 @@ gather_pass_avx512(rf_work *w, long n, const float *restrict tex, int rs)
 #endif
 
 /* The bilinear lookups (sample's second half): values and their derivatives
- * along the texel axes, per channel. */
-static void gather_pass(rf_work *w, long n, const float *restrict tex, int rs)
+ * along the texel axes, per channel. rs: texels a row. */
+static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex, int rs, float scale)
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
@@ -590,11 +626,13 @@ static void gather_pass(rf_work *w, long n, const float *restrict tex, int rs)
     float *restrict e0 = w->a[A_DV0], *restrict e1 = w->a[A_DV1], *restrict e2 = w->a[A_DV2];
     float *restrict vv[3] = {v0, v1, v2}, *restrict uu[3] = {u0, u1, u2},
                     *restrict ee[3] = {e0, e1, e2};
+    const long r4 = (long)rs * 4;
     for (int c = 0; c < 3; c++) {
         float *restrict val = vv[c], *restrict du = uu[c], *restrict dv = ee[c];
         for (long k = 0; k < n; k++) {
-            int o = off[k] + c;
-            float a00 = tex[o], a10 = tex[o + 3], a01 = tex[o + rs], a11 = tex[o + rs + 3];
+            const uint16_t *p = tex + (long)off[k] * 4 + c;
+            float a00 = p[0] * scale, a10 = p[4] * scale, a01 = p[r4] * scale,
+                  a11 = p[r4 + 4] * scale;
             float a = fx[k], b = fy[k];
             float top = a00 + a * (a10 - a00), bot = a01 + a * (a11 - a01);
             val[k] = top + b * (bot - top);
@@ -803,8 +841,8 @@ static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int s
 static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3][3], double cx,
                      double cy, double r, double fixed_f, rf_fit *fit)
 {
-    const float *tex = t->px[lev];
-    int tw = t->w[lev], th = t->h[lev], rs = (tw + 2) * 3;
+    const uint16_t *tex = t->px[lev];
+    int tw = t->w[lev], th = t->h[lev], rs = tw + 2;
     long np = w->np, npad = w->npad;
     double f = focal_of(r, fixed_f), tan_a = r / f, dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
     float Rf[9];
@@ -812,18 +850,18 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     geometry_pass(w, npad, Rf, (float)(cx - w->c0x), (float)(cy - w->c0y), (float)(1.0 / f),
                   (float)dist, tw, th);
 #ifdef RF_X86_GCC
-    if (__builtin_cpu_supports("avx512f"))
-        gather_pass_avx512(w, npad, tex, rs);
+    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw"))
+        gather_pass_avx512(w, npad, tex, rs, t->scale[lev]);
     else
 #endif
     {
         /* ask for every sample's two texel rows ahead: after the network has
          * run the texture is mostly out of the caches */
         for (long k = 0; k < np; k++) {
-            __builtin_prefetch(tex + w->off[k]);
-            __builtin_prefetch(tex + w->off[k] + rs);
+            __builtin_prefetch(tex + (long)w->off[k] * 4);
+            __builtin_prefetch(tex + ((long)w->off[k] + rs) * 4);
         }
-        gather_pass(w, npad, tex, rs);
+        gather_pass(w, npad, tex, rs, t->scale[lev]);
     }
     if (w->gray) luma_pass(w, npad);
     /* the padding takes no part: no texture there */
