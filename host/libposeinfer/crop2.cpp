@@ -35,6 +35,7 @@ namespace
 struct Scratch {
     std::vector<int32_t> red, row, M, GX, GY, V, D, acc, box, hsum, vmax, bmax;
     std::vector<int32_t> keep;
+    std::vector<uint16_t> acc16, box16, hsum16, vmax16, bmax16;
 };
 thread_local Scratch scratch;
 
@@ -373,48 +374,69 @@ KERN2_CLONES void unit_gradients(const int32_t *gx, const int32_t *gy, size_t n,
 // per bin, a ring), the vertical sum of a row once the row below it is
 // summed. Each row of a bin's plane is cleared after its last use (the next
 // frame finds the accumulator zero). Row loops, so that they vectorise.
-KERN2_CLONES void box_max(int32_t *acc, int nb, int hs, int ws, int32_t *pair, int32_t *h3,
-                          int32_t *vmax, int32_t *bmax)
+template <class T>
+inline __attribute__((always_inline)) void box_max_t(T *acc, int nb, int hs, int ws, T *pair, T *h3,
+                                                     T *vmax, T *bmax)
 {
     const size_t W = (size_t)ws, plane = (size_t)hs * W;
     for (size_t c = 0; c < plane; c++) {
-        vmax[c] = -1;
+        vmax[c] = 0; // every sum is >= 0: the first bin wins a cell of zeros, as with -1
         bmax[c] = 0;
     }
     for (int Y = 0; Y <= hs; Y++) {
         for (int b = 0; b < nb && Y < hs; b++) {
             // the horizontal 3-sums of row Y (no neighbour beyond the row)
-            int32_t *ar = acc + (size_t)b * plane + (size_t)Y * W;
-            int32_t *hr = h3 + ((size_t)b * 3 + (size_t)(Y % 3)) * W;
+            T *ar = acc + (size_t)b * plane + (size_t)Y * W;
+            T *hr = h3 + ((size_t)b * 3 + (size_t)(Y % 3)) * W;
             if (b + 1 < nb) {
-                const int32_t *nr = ar + plane;
-                for (size_t c = 0; c < W; c++) pair[c] = ar[c] + nr[c];
+                const T *nr = ar + plane;
+                for (size_t c = 0; c < W; c++) pair[c] = (T)(ar[c] + nr[c]);
             } else {
                 for (size_t c = 0; c < W; c++) pair[c] = ar[c];
             }
-            for (size_t c = 1; c + 1 < W; c++) hr[c] = pair[c - 1] + pair[c] + pair[c + 1];
-            hr[0] = pair[0] + (ws > 1 ? pair[1] : 0);
-            if (ws > 1) hr[W - 1] = pair[W - 2] + pair[W - 1];
+            for (size_t c = 1; c + 1 < W; c++) hr[c] = (T)(pair[c - 1] + pair[c] + pair[c + 1]);
+            hr[0] = (T)(pair[0] + (ws > 1 ? pair[1] : 0));
+            if (ws > 1) hr[W - 1] = (T)(pair[W - 2] + pair[W - 1]);
             // used by this bin and the one before
-            std::fill(ar, ar + W, 0);
+            std::fill(ar, ar + W, (T)0);
         }
         // row Yo = Y - 1: the rows above and below it (zero beyond the plane)
         const int Yo = Y - 1;
         if (Yo < 0) continue;
-        int32_t *vm = vmax + (size_t)Yo * W, *bm = bmax + (size_t)Yo * W;
+        T *vm = vmax + (size_t)Yo * W, *bm = bmax + (size_t)Yo * W;
         for (int b = 0; b < nb; b++) {
-            const int32_t *hb = h3 + (size_t)b * 3 * W;
-            const int32_t *hm = hb + (size_t)(Yo % 3) * W;
-            const int32_t *hu = Yo > 0 ? hb + (size_t)((Yo - 1) % 3) * W : nullptr;
-            const int32_t *hd = Yo + 1 < hs ? hb + (size_t)((Yo + 1) % 3) * W : nullptr;
+            const T *hb = h3 + (size_t)b * 3 * W;
+            const T *hm = hb + (size_t)(Yo % 3) * W;
+            const T *hu = Yo > 0 ? hb + (size_t)((Yo - 1) % 3) * W : nullptr;
+            const T *hd = Yo + 1 < hs ? hb + (size_t)((Yo + 1) % 3) * W : nullptr;
             for (size_t c = 0; c < W; c++) {
-                const int32_t v = (hu ? hu[c] : 0) + hm[c] + (hd ? hd[c] : 0);
-                const int32_t gt = v > vm[c];
+                const T v = (T)((hu ? hu[c] : 0) + hm[c] + (hd ? hd[c] : 0));
+                const bool gt = v > vm[c];
                 vm[c] = gt ? v : vm[c];
-                bm[c] = gt ? b : bm[c];
+                bm[c] = gt ? (T)b : bm[c];
             }
         }
     }
+}
+
+KERN2_CLONES void box_max(int32_t *acc, int nb, int hs, int ws, int32_t *pair, int32_t *h3,
+                          int32_t *vmax, int32_t *bmax)
+{
+    box_max_t<int32_t>(acc, nb, hs, ws, pair, h3, vmax, bmax);
+}
+
+// The same in 16 bits (twice the lanes, half the memory), for an
+// accumulator whose every sum of two bins fits 16 bits (see coarse).
+KERN2_CLONES void box_max16(uint16_t *acc, int nb, int hs, int ws, uint16_t *pair, uint16_t *h3,
+                            uint16_t *vmax, uint16_t *bmax)
+{
+    box_max_t<uint16_t>(acc, nb, hs, ws, pair, h3, vmax, bmax);
+}
+
+// v32[i] = v16[i]. A loop of its own so that it vectorises.
+KERN2_CLONES void widen(const uint16_t *v16, size_t n, int32_t *v32)
+{
+    for (size_t i = 0; i < n; i++) v32[i] = v16[i];
 }
 
 // The largest of v[0 .. n), n >= 1. A loop of its own so that it vectorises.
@@ -466,8 +488,19 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const size_t plane = (size_t)hs * ws;
     // the accumulator is left zero after each frame (box_max clears it)
     std::vector<int32_t> &acc = scratch.acc;
+    std::vector<uint16_t> &acc16 = scratch.acc16;
     const int nr = (int)(hi - lo + 1);
-    if (acc.size() < (size_t)nb * plane + 2 * (size_t)nr) {
+    // an edge votes once per radius and sign: a sum over two bins (a cell's
+    // count, a box sum) is at most the edges times twice the radii of the
+    // two widest neighbouring bins; below 2^16, 16 bits count exactly
+    size_t widest = 0;
+    for (int b = 0; b < nb; b++)
+        widest = std::max(widest, (size_t)(start[(size_t)std::min(b + 2, nb)] - start[(size_t)b]));
+    const bool narrow = e.n * 2 * widest < 65536;
+    if (narrow) {
+        if (acc16.size() < (size_t)nb * plane + 2 * (size_t)nr)
+            acc16.assign((size_t)nb * plane + 2 * (size_t)nr, 0);
+    } else if (acc.size() < (size_t)nb * plane + 2 * (size_t)nr) {
         acc.assign((size_t)nb * plane + 2 * (size_t)nr, 0);
     }
     std::vector<double> srs(2 * (size_t)nr);
@@ -484,7 +517,10 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     for (size_t i = 0; i < e.n; i++) {
         vote_cells(srs.data(), boff.data(), 2 * nr, e.x[i], e.y[i], ux[i], uy[i], ws, hs, trash,
                    cell.data());
-        for (int k = 0; k < 2 * nr; k++) acc[(size_t)cell[(size_t)k]]++;
+        if (narrow)
+            for (int k = 0; k < 2 * nr; k++) acc16[(size_t)cell[(size_t)k]]++;
+        else
+            for (int k = 0; k < 2 * nr; k++) acc[(size_t)cell[(size_t)k]]++;
     }
     // 3 x 3 box sums per bin (zeros outside), then each bin plus the next;
     // per cell its best bin (first on ties). The box sum is linear: it is
@@ -495,10 +531,25 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     hsum.resize(3 * (size_t)nb * ws);
     vmax.resize(plane);
     bmax.resize(plane);
-    box_max(acc.data(), nb, hs, ws, pair.data(), hsum.data(), vmax.data(), bmax.data());
-    // the slots of the votes outside
-    std::fill(acc.begin() + (long)((size_t)nb * plane),
-              acc.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
+    if (narrow) {
+        std::vector<uint16_t> &pair16 = scratch.box16, &hsum16 = scratch.hsum16,
+                              &vmax16 = scratch.vmax16, &bmax16 = scratch.bmax16;
+        pair16.resize((size_t)ws);
+        hsum16.resize(3 * (size_t)nb * ws);
+        vmax16.resize(plane);
+        bmax16.resize(plane);
+        box_max16(acc16.data(), nb, hs, ws, pair16.data(), hsum16.data(), vmax16.data(),
+                  bmax16.data());
+        widen(vmax16.data(), plane, vmax.data());
+        widen(bmax16.data(), plane, bmax.data());
+        // the slots of the votes outside
+        std::fill(acc16.begin() + (long)((size_t)nb * plane),
+                  acc16.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
+    } else {
+        box_max(acc.data(), nb, hs, ws, pair.data(), hsum.data(), vmax.data(), bmax.data());
+        std::fill(acc.begin() + (long)((size_t)nb * plane),
+                  acc.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
+    }
     const double sup = p->cand_gap * (double)lo;
     long best = -1;
     // a peak whose circle would be refused as cut by the frame edge is refined but does not use
