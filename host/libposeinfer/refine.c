@@ -109,8 +109,10 @@ struct rf_work {
     const rf_image *frame;          /* the frame, the crop's corner at (x0, y0) */
     int gray;                       /* a gray frame: the texture is seen as its luma */
     int x0, y0;
-    float *a[A_COUNT]; /* the sample arrays, within buf */
-    int32_t *off;      /* texel offsets */
+    float *a[A_COUNT];  /* the sample arrays, within buf */
+    float *ja[A_COUNT]; /* the Jacobian pass's samples (jac_samples), within buf */
+    int32_t *off;       /* texel offsets */
+    int32_t *idx;       /* the Jacobian pass's samples (jac_samples) */
     void *buf;
     size_t cap;      /* samples the arrays hold */
     long np, npad;   /* samples of the current level, and padded */
@@ -363,12 +365,16 @@ static int reserve(rf_work *w, size_t n)
     n = (n + RF_LANES - 1) / RF_LANES * RF_LANES;
     if (n <= w->cap) return 0;
     void *p = NULL;
-    if (posix_memalign(&p, 64, n * (A_COUNT * sizeof(float) + sizeof(int32_t)))) return -1;
+    if (posix_memalign(&p, 64, n * (2 * A_COUNT * sizeof(float) + 2 * sizeof(int32_t)))) return -1;
     free(w->buf);
     w->buf = p;
     w->cap = n;
-    for (int k = 0; k < A_COUNT; k++) w->a[k] = (float *)p + (size_t)k * n;
-    w->off = (int32_t *)((float *)p + (size_t)A_COUNT * n);
+    for (int k = 0; k < A_COUNT; k++) {
+        w->a[k] = (float *)p + (size_t)k * n;
+        w->ja[k] = (float *)p + (size_t)(A_COUNT + k) * n;
+    }
+    w->off = (int32_t *)((float *)p + (size_t)2 * A_COUNT * n);
+    w->idx = w->off + n;
     return 0;
 }
 
@@ -909,7 +915,7 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
  * and J^T e (6, summed over the channels). k: (inv_f, cr, dDr) the ray's
  * derivatives (see jacobian), R the rotation, a the photometric coefficients. */
 #define RF_JSUMS (21 + 90 + 6)
-RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], const float kd[3],
+RF_CLONES static void jac_sums(float *const *q, long npad, const float R[9], const float kd[3],
                                const float a[3][5], double out[RF_JSUMS])
 {
     const float inv_f = kd[0], cr = kd[1], dDr = kd[2];
@@ -922,9 +928,9 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
     for (long k = 0; k < npad; k += RF_VL) {
         if (k % RF_JBLOCK == 0)
             for (int i = 0; i < RF_JSUMS; i++) acc[i] = (vf){0};
-        vf x = vload(w->a[A_RX] + k), y = vload(w->a[A_RY] + k);
-        vf inv = vload(w->a[A_INV] + k), t = vload(w->a[A_T] + k);
-        vf n0 = vload(w->a[A_NX] + k), n1 = vload(w->a[A_NY] + k), n2 = vload(w->a[A_NZ] + k);
+        vf x = vload(q[A_RX] + k), y = vload(q[A_RY] + k);
+        vf inv = vload(q[A_INV] + k), t = vload(q[A_T] + k);
+        vf n0 = vload(q[A_NX] + k), n1 = vload(q[A_NY] + k), n2 = vload(q[A_NZ] + k);
         vf e0 = x * inv, e1 = y * inv, e2 = -inv; /* the ray's direction d */
         /* n.d = -cos of the angle of incidence: about -0.4 at the samples'
          * rim; where a step has moved the circle so far that a ray only
@@ -963,7 +969,7 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
         /* the world-frame gradient of channel c is du_c P + dv_c Q: P, Q are
          * R times the texel axes' d (u, v) / d b; the rendering's derivatives
          * are linear in it (rotation: g x n, circle: g . dn) */
-        vf d0 = vload(w->a[A_DUT0] + k), d2 = vload(w->a[A_DUT2] + k), d1 = vload(w->a[A_DVT1] + k);
+        vf d0 = vload(q[A_DUT0] + k), d2 = vload(q[A_DUT2] + k), d1 = vload(q[A_DVT1] + k);
         vf P[3], Q[3], JP[6], JQ[6];
         for (int i = 0; i < 3; i++) {
             P[i] = R[3 * i] * d0 + R[3 * i + 2] * d2;
@@ -981,11 +987,11 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
         }
         vf J[3][6], e[3];
         for (int c = 0; c < 3; c++) {
-            vf tv = vload(w->a[A_V0 + c] + k);
+            vf tv = vload(q[A_V0 + c] + k);
             vf sh = a[c][0] + a[c][1] * n0 + a[c][2] * n1 + a[c][3] * n2;
-            vf al = vsel(meets, sh * vload(w->a[A_DU0 + c] + k), (vf){0});
-            vf be = vsel(meets, sh * vload(w->a[A_DV0 + c] + k), (vf){0});
-            e[c] = vload(w->a[A_O0 + c] + k) - (tv * sh + a[c][4]);
+            vf al = vsel(meets, sh * vload(q[A_DU0 + c] + k), (vf){0});
+            vf be = vsel(meets, sh * vload(q[A_DV0 + c] + k), (vf){0});
+            e[c] = vload(q[A_O0 + c] + k) - (tv * sh + a[c][4]);
             for (int i = 0; i < 6; i++) J[c][i] = al * JP[i] + be * JQ[i];
             vf ab[5] = {tv, tv * n0, tv * n1, tv * n2, (vf){0} + 1.0f};
             for (int i = 0; i < 6; i++)
@@ -1012,6 +1018,67 @@ RF_CLONES static void jac_sums(const rf_work *w, long npad, const float R[9], co
     }
 }
 
+/* The samples whose rendering has a gradient, copied into w->ja (padded with
+ * zeros to RF_LANES); returns their count, padded. Where the texture is flat
+ * over a sample's 2 x 2 texels (most of the paper's textures: bars of one
+ * colour) its derivatives are exactly 0 in every channel, and so is all it
+ * adds to J^T J, J^T A and J^T e: the Jacobian pass skips it. */
+RF_CLONES static long active_samples(const rf_work *w, int32_t *idx)
+{
+    long m = 0;
+    for (long k = 0; k < w->npad; k += RF_VL) {
+        /* nonzero where any derivative is (the sign bit masked off: -0 is 0) */
+        vi any =
+            ((vi)vload(w->a[A_DU0] + k) | (vi)vload(w->a[A_DU1] + k) | (vi)vload(w->a[A_DU2] + k) |
+             (vi)vload(w->a[A_DV0] + k) | (vi)vload(w->a[A_DV1] + k) | (vi)vload(w->a[A_DV2] + k)) &
+            0x7fffffff;
+        vi z = {0};
+        if (!memcmp(&any, &z, sizeof z)) continue;
+        for (int l = 0; l < RF_VL; l++) {
+            idx[m] = (int32_t)(k + l);
+            m += any[l] != 0;
+        }
+    }
+    return m;
+}
+
+#ifdef RF_X86_GCC
+/* dst[k] = src[idx[k]], k < m (idx padded to RF_LANES with valid indices) */
+__attribute__((target("avx512f"))) static void pick_avx512(float *dst, const float *src,
+                                                           const int32_t *idx, long m)
+{
+    for (long k = 0; k < m; k += 16)
+        _mm512_store_ps(dst + k,
+                        _mm512_i32gather_ps(_mm512_load_si512((const void *)(idx + k)), src, 4));
+}
+#endif
+
+static long jac_samples(rf_work *w)
+{
+    static const int keep[] = {A_O0,  A_O1,  A_O2,   A_NX,   A_NY,   A_NZ, A_RX, A_RY,
+                               A_INV, A_T,   A_DUT0, A_DUT2, A_DVT1, A_V0, A_V1, A_V2,
+                               A_DU0, A_DU1, A_DU2,  A_DV0,  A_DV1,  A_DV2};
+    enum { NK = sizeof keep / sizeof keep[0] };
+    long m = active_samples(w, w->idx), mp = (m + RF_LANES - 1) / RF_LANES * RF_LANES;
+    int32_t *idx = w->idx;
+    for (long k = m; k < mp; k++) idx[k] = 0; /* read, then zeroed below */
+    for (int i = 0; i < NK; i++) {
+        const float *src = w->a[keep[i]];
+        float *dst = w->ja[keep[i]];
+#ifdef RF_X86_GCC
+        if (__builtin_cpu_supports("avx512f"))
+            pick_avx512(dst, src, idx, mp);
+        else
+#endif
+            for (long k = 0; k < m; k++) dst[k] = src[idx[k]];
+        for (long k = m; k < mp; k++) dst[k] = 0;
+    }
+#ifdef RF_TRACE
+    fprintf(stderr, "JAC active %ld of %ld\n", m, w->np);
+#endif
+    return mp;
+}
+
 /* The Jacobian pass at the pose and circle of the last value pass: the normal
  * equations H d = g of a step, with the photometric coefficients projected out. */
 static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f, const rf_fit *fit,
@@ -1028,7 +1095,8 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
     for (int i = 0; i < 9; i++) Rf[i] = (float)R[i / 3][i % 3];
     for (int c = 0; c < 3; c++)
         for (int i = 0; i < 5; i++) a[c][i] = (float)fit->coef[c][i];
-    jac_sums(w, w->npad, Rf, kd, a, s);
+    long nj = jac_samples(w);
+    jac_sums(w->ja, nj, Rf, kd, a, s);
     double JtA[3][6][5];
     int h = 0;
     for (int i = 0; i < 6; i++)
