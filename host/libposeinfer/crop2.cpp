@@ -447,6 +447,25 @@ KERN2_CLONES int32_t max_of(const int32_t *v, size_t n)
     return m;
 }
 
+// Whether any of v[0 .. n) equals x. A loop of its own so that it vectorises.
+KERN2_CLONES bool any_eq(const int32_t *v, size_t n, int32_t x)
+{
+    int32_t hit = 0;
+    for (size_t i = 0; i < n; i++) hit |= (int32_t)(v[i] == x);
+    return hit != 0;
+}
+
+// The first index of x in v[0 .. n) (x is there): blocks looked at as a
+// whole first, the one holding it then one by one.
+size_t first_of(const int32_t *v, size_t n, int32_t x)
+{
+    const size_t blk = 256;
+    size_t i = 0;
+    while (i + blk < n && !any_eq(v + i, blk, x)) i += blk;
+    while (v[i] != x) i++;
+    return i;
+}
+
 // Candidate circles, strongest first; *s_out the reduction.
 double rim_outside(double cx, double cy, double r, int h, int w);
 
@@ -556,8 +575,7 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     // up one of the `candidates` places (training/preprocess.py says why); 4 x candidates at most
     for (int k = 0, taken = 0; k < 4 * p->candidates && taken < p->candidates; k++) {
         const int32_t v = max_of(vmax.data(), plane);
-        size_t ci = 0;
-        while (vmax[ci] != v) ci++; // the first cell holding it
+        const size_t ci = first_of(vmax.data(), plane, v); // the first cell holding it
         if (v <= 0 || (best >= 0 && (double)v < p->cand_frac * (double)best)) break;
         if (best < 0) best = v;
         const long Yc = (long)(ci / ws), Xc = (long)(ci % ws);
@@ -1144,7 +1162,8 @@ void grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
 
 double rim_outside(double cx, double cy, double r, int h, int w)
 {
-    const std::vector<double> d = ray_dirs(256);
+    // the 256 directions, computed once per thread
+    thread_local const std::vector<double> d = ray_dirs(256);
     int out = 0;
     for (int k = 0; k < 256; k++) {
         const double X = cx + r * d[2 * (size_t)k], Y = cy + r * d[2 * (size_t)k + 1];
@@ -1230,7 +1249,9 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     }
     int s = 1;
     const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, &s);
-    const std::vector<double> dirs = ray_dirs(p->rays);
+    // the ray directions, computed again only when the count changes
+    thread_local std::vector<double> dirs;
+    if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
     const Frame f = {bgr, stride, w, h};
     std::vector<Found> all, fits;
     const double decisive = (1.0 + p->min_support) / 2.0;
