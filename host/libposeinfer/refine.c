@@ -114,10 +114,11 @@ struct rf_work {
     int32_t *off;       /* texel offsets */
     int32_t *idx;       /* the Jacobian pass's samples (jac_samples) */
     void *buf;
-    size_t cap;      /* samples the arrays hold */
-    long np, npad;   /* samples of the current level, and padded */
-    double c0x, c0y; /* the level's first circle centre (A_X, A_Y's origin) */
-    double sst;      /* the sampled pixels' variance sum (pixel_set) */
+    size_t cap;           /* samples the arrays hold */
+    long np, npad;        /* samples of the current level, and padded */
+    double c0x, c0y;      /* the level's first circle centre (A_X, A_Y's origin) */
+    double sst;           /* the sampled pixels' variance sum (pixel_set) */
+    double so[3], soo[3]; /* the sampled pixels' sums of obs and obs^2 per channel (exact) */
 };
 
 static const int rf_iters[RF_LEVELS] = RF_ITERS_INIT;
@@ -664,12 +665,12 @@ static void luma_pass(rf_work *w, long n)
 /* Per channel, the sums of the photometric fit over the samples (double
  * lanes: the sum of squares it leaves is a small difference of them):
  * T^2 m (m = 1, nx, ny, nz, nx nx, nx ny, nx nz, ny ny, ny nz, nz nz),
- * T (1, n), T obs (1, n), obs, obs^2. */
+ * T (1, n), T obs (1, n) (the sums of obs and obs^2 come from pixel_set). */
 RF_CLONES static void fit_sums(const rf_work *w, long npad, double q[3][20])
 {
     for (int c = 0; c < 3; c++) {
-        vd acc[20];
-        for (int i = 0; i < 20; i++) acc[i] = (vd){0};
+        vd acc[18];
+        for (int i = 0; i < 18; i++) acc[i] = (vd){0};
         for (long k = 0; k < npad; k += RF_VL / 2) {
             vd t = vdload(w->a[A_V0 + c] + k), o = vdload(w->a[A_O0 + c] + k);
             vd n0 = vdload(w->a[A_NX] + k), n1 = vdload(w->a[A_NY] + k),
@@ -693,10 +694,8 @@ RF_CLONES static void fit_sums(const rf_work *w, long npad, double q[3][20])
             acc[15] += to * n0;
             acc[16] += to * n1;
             acc[17] += to * n2;
-            acc[18] += o;
-            acc[19] += o * o;
         }
-        for (int i = 0; i < 20; i++) {
+        for (int i = 0; i < 18; i++) {
             double sum = 0;
             for (int l = 0; l < RF_VL / 2; l++) sum += acc[i][l];
             q[c][i] = sum;
@@ -835,6 +834,10 @@ static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int s
     /* the frame's variance sum over them, the residual's denominator, from
      * the exact moments of the block sums */
     double sst = 0, kk = (double)(1 << lev) * (1 << lev);
+    for (int c = 0; c < 3; c++) {
+        w->so[c] = (double)s[c] / kk; /* exact: the block sums over a power of two */
+        w->soo[c] = (double)q[c] / (kk * kk);
+    }
     for (int c = 0; c < 3 && n > 0; c++) sst += (double)q[c] - (double)s[c] * (double)s[c] / n;
     w->sst = sst / (kk * kk);
     return n;
@@ -887,8 +890,8 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
             fit->Atb[c][i] = q[c][14 + i];
         }
         M[4][4] = (double)np;
-        fit->Atb[c][4] = q[c][18];
-        oo[c] = q[c][19];
+        fit->Atb[c][4] = w->so[c];
+        oo[c] = w->soo[c];
     }
     /* |obs - A coef|^2 = obs.obs - 2 coef.A^T obs + coef.A^T A coef (training/refine.py
      * photometric_fit): no second pass over the pixels */
