@@ -796,8 +796,12 @@ def _find_sphere_v2(frame, p, camera=None):
     if fits:
         # the best supported fit (first on ties), when weakly supported, tried from larger circles
         ib = min(range(len(fits)), key=lambda i: (-fits[i][3], i))
-        if fits[ib][3] < decisive:
-            fits[ib] = _grow(frame, dirs, fits[ib], p)
+        # again from the circle it moved to, while that is better supported and still weak
+        while fits[ib][3] < decisive:
+            g = _grow(frame, dirs, fits[ib], p)
+            if g is fits[ib]:
+                break
+            fits[ib] = g
     found = [f for f in fits if f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1]
     if not found:
         raise NoSphere("no sphere found in frame")

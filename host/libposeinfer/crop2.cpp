@@ -1134,9 +1134,10 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
 // A weakly supported fit tried again from larger circles (preprocess.py
 // _grow): from the same centre with the radius fine_window_px and 2
 // fine_window_px larger, fine_passes - 1 passes each; the best supported of
-// the fit and these (the fit on ties) is kept.
-void grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit)
+// the fit and these (the fit on ties) is kept. True when one of these is.
+bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit)
 {
+    bool moved = false;
     thread_local RayEdges re;
     const Found start = *fit;
     for (int k = 1; k <= 2; k++) {
@@ -1156,8 +1157,12 @@ void grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
         }
         if (!ok) continue;
         const double sup = support(f, dirs, cx, cy, r, p);
-        if (sup > fit->support) *fit = {cx, cy, r, sup};
+        if (sup > fit->support) {
+            *fit = {cx, cy, r, sup};
+            moved = true;
+        }
     }
+    return moved;
 }
 
 double rim_outside(double cx, double cy, double r, int h, int w)
@@ -1273,7 +1278,9 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         size_t ib = 0;
         for (size_t i = 1; i < all.size(); i++)
             if (all[i].support > all[ib].support) ib = i;
-        if (all[ib].support < decisive) grow(f, dirs, p, &all[ib]);
+        // again from the circle it moved to, while that is better supported and still weak
+        while (all[ib].support < decisive && grow(f, dirs, p, &all[ib])) {
+        }
     }
     for (const Found &fo : all)
         if (fo.support >= p->min_support && rmin * 0.9 <= fo.r && fo.r <= rmax * 1.1)
