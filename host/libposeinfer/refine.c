@@ -570,9 +570,9 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
 #ifdef RF_X86_GCC
 /* The bilinear lookups below, 16 samples at a time with AVX-512: each
  * texel's three channels in one 64-bit load, the loads of a block gathered
- * together, which keeps the memory busy (after the network has run, the
- * texture is mostly out of the caches) without a prefetch pass; the
- * arithmetic is the loop's, lane by lane. */
+ * together, and the texels of the block after next asked for (after the
+ * network has run, the texture is mostly out of the caches); the arithmetic
+ * is the loop's, lane by lane. */
 __attribute__((target("avx512f,avx512bw"))) static void
 gather_pass_avx512(rf_work *w, long n, const uint16_t *restrict tex, int rs, float scale)
 {
@@ -590,6 +590,14 @@ gather_pass_avx512(rf_work *w, long n, const uint16_t *restrict tex, int rs, flo
     const __m256i d10 = _mm256_set1_epi32(1), d01 = _mm256_set1_epi32(rs),
                   d11 = _mm256_set1_epi32(rs + 1);
     for (long k = 0; k < n; k += 16) {
+        /* the texel rows of the samples two blocks on: their misses overlap
+         * this block's (the gather alone waits for each block in turn) */
+        if (k + 32 < n)
+            for (int l = 0; l < 16; l++) {
+                const char *p = (const char *)(tex + (long)off[k + 32 + l] * 4);
+                __builtin_prefetch(p);
+                __builtin_prefetch(p + (long)rs * 8);
+            }
         __m256i lo = _mm256_load_si256((const __m256i *)(off + k)),
                 hi = _mm256_load_si256((const __m256i *)(off + k + 8));
         __m512i g[4][2];
