@@ -503,9 +503,10 @@ static inline vf vatan2(vf y, vf x)
     vf ax = vabs(x), ay = vabs(y);
     vi swap = vneg(ax - ay); /* ay > ax */
     vf mx = vsel(swap, ay, ax), mn = vsel(swap, ax, ay);
-    vf t = mn / (mx + 1e-30f); /* [0, 1]; 0 at the origin */
-    vi big = vneg(0.41421356f - t);
-    vf u = vsel(big, (t - 1.0f) / (t + 1.0f), t);
+    /* t = mn / mx in [0, 1] (0 at the origin); above tan(pi/8) the reduced
+     * argument (t - 1) / (t + 1) = (mn - mx) / (mn + mx): one division */
+    vi big = vneg(0.41421356f * mx - mn);
+    vf u = vsel(big, mn - mx, mn) / (vsel(big, mn, (vf){0}) + mx + 1e-30f);
     vf z = u * u;
     vf p = ((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z -
            3.33329491539e-1f;
@@ -554,7 +555,7 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
         i0 = vimin(vimax(i0, -1), tw - 1);
         j0 = vimin(vimax(j0, -1), th - 1);
         *(vi *)(w->off + k) = (j0 + 1) * rs + (i0 + 1);
-        vf krho = kw / rho2;
+        vf krho = kw * (irho * irho);
         *(vf *)(w->a[A_DUT0] + k) = bz * krho;
         *(vf *)(w->a[A_DUT2] + k) = -bx * krho;
         *(vf *)(w->a[A_DVT1] + k) = -kh * irho;
