@@ -658,16 +658,16 @@ static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex, int rs
     }
 }
 
-/* A gray frame sees the texture as its luma. */
+/* A gray frame sees the texture as its luma, in channel 0: its three
+ * channels are equal, so the passes after this one take channel 0 alone and
+ * count it three times. */
 static void luma_pass(rf_work *w, long n)
 {
     static const int q[3][3] = {{A_V0, A_V1, A_V2}, {A_DU0, A_DU1, A_DU2}, {A_DV0, A_DV1, A_DV2}};
     for (int m = 0; m < 3; m++) {
         float *b = w->a[q[m][0]], *g = w->a[q[m][1]], *r = w->a[q[m][2]];
-        for (long k = 0; k < n; k++) {
-            float y = (float)(b[k] * RF_LUMA_B + g[k] * RF_LUMA_G + r[k] * RF_LUMA_R);
-            b[k] = g[k] = r[k] = y;
-        }
+        for (long k = 0; k < n; k++)
+            b[k] = (float)(b[k] * RF_LUMA_B + g[k] * RF_LUMA_G + r[k] * RF_LUMA_R);
     }
 }
 
@@ -675,9 +675,9 @@ static void luma_pass(rf_work *w, long n)
  * lanes: the sum of squares it leaves is a small difference of them):
  * T^2 m (m = 1, nx, ny, nz, nx nx, nx ny, nx nz, ny ny, ny nz, nz nz),
  * T (1, n), T obs (1, n) (the sums of obs and obs^2 come from pixel_set). */
-RF_CLONES static void fit_sums(const rf_work *w, long npad, double q[3][20])
+RF_CLONES static void fit_sums(const rf_work *w, long npad, int nch, double q[3][20])
 {
-    for (int c = 0; c < 3; c++) {
+    for (int c = 0; c < nch; c++) {
         vd acc[18];
         for (int i = 0; i < 18; i++) acc[i] = (vd){0};
         for (long k = 0; k < npad; k += RF_VL / 2) {
@@ -886,7 +886,8 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     for (int m = A_V0; m <= A_DV2; m++)
         for (long k = np; k < npad; k++) w->a[m][k] = 0;
     double q[3][20], oo[3];
-    fit_sums(w, npad, q);
+    fit_sums(w, npad, w->gray ? 1 : 3, q);
+    if (w->gray) memcpy(q[1], q[0], sizeof q[0]), memcpy(q[2], q[0], sizeof q[0]);
     memset(fit, 0, sizeof *fit);
     for (int c = 0; c < 3; c++) {
         double(*M)[6] = fit->AtA[c];
@@ -927,8 +928,10 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
  * and J^T e (6, summed over the channels). k: (inv_f, cr, dDr) the ray's
  * derivatives (see jacobian), R the rotation, a the photometric coefficients. */
 #define RF_JSUMS (21 + 90 + 6)
-RF_CLONES static void jac_sums(float *const *q, long npad, const float R[9], const float kd[3],
-                               const float a[3][5], double out[RF_JSUMS])
+static inline __attribute__((always_inline)) void jac_sums_n(float *const *q, long npad,
+                                                             const float R[9], const float kd[3],
+                                                             const float a[3][5],
+                                                             double out[RF_JSUMS], int nch)
 {
     const float inv_f = kd[0], cr = kd[1], dDr = kd[2];
     /* float lanes over RF_JBLOCK samples each, then double: H is nearly
@@ -998,7 +1001,7 @@ RF_CLONES static void jac_sums(float *const *q, long npad, const float R[9], con
             JQ[3 + m] = Q[0] * dn[m][0] + Q[1] * dn[m][1] + Q[2] * dn[m][2];
         }
         vf J[3][6], e[3];
-        for (int c = 0; c < 3; c++) {
+        for (int c = 0; c < nch; c++) {
             vf tv = vload(q[A_V0 + c] + k);
             vf sh = a[c][0] + a[c][1] * n0 + a[c][2] * n1 + a[c][3] * n2;
             vf al = vsel(meets, sh * vload(q[A_DU0 + c] + k), (vf){0});
@@ -1010,11 +1013,17 @@ RF_CLONES static void jac_sums(float *const *q, long npad, const float R[9], con
                 for (int j = 0; j < 5; j++) acc[21 + c * 30 + i * 5 + j] += J[c][i] * ab[j];
         }
         int h = 0;
-        for (int i = 0; i < 6; i++)
-            for (int j = i; j < 6; j++, h++)
-                acc[h] += J[0][i] * J[0][j] + J[1][i] * J[1][j] + J[2][i] * J[2][j];
-        for (int i = 0; i < 6; i++)
-            acc[111 + i] += J[0][i] * e[0] + J[1][i] * e[1] + J[2][i] * e[2];
+        if (nch == 3) {
+            for (int i = 0; i < 6; i++)
+                for (int j = i; j < 6; j++, h++)
+                    acc[h] += J[0][i] * J[0][j] + J[1][i] * J[1][j] + J[2][i] * J[2][j];
+            for (int i = 0; i < 6; i++)
+                acc[111 + i] += J[0][i] * e[0] + J[1][i] * e[1] + J[2][i] * e[2];
+        } else {
+            for (int i = 0; i < 6; i++)
+                for (int j = i; j < 6; j++, h++) acc[h] += J[0][i] * J[0][j];
+            for (int i = 0; i < 6; i++) acc[111 + i] += J[0][i] * e[0];
+        }
         if ((k + RF_VL) % RF_JBLOCK == 0 || k + RF_VL >= npad)
             for (int i = 0; i < RF_JSUMS; i++) {
                 vf2 half;
@@ -1028,6 +1037,19 @@ RF_CLONES static void jac_sums(float *const *q, long npad, const float R[9], con
         for (int l = 0; l < RF_VL / 2; l++) s += tot[i][0][l] + tot[i][1][l];
         out[i] = s;
     }
+}
+
+RF_CLONES static void jac_sums3(float *const *q, long npad, const float R[9], const float kd[3],
+                                const float a[3][5], double out[RF_JSUMS])
+{
+    jac_sums_n(q, npad, R, kd, a, out, 3);
+}
+
+/* a gray frame: channel 0 alone (the sums of the others are the same) */
+RF_CLONES static void jac_sums1(float *const *q, long npad, const float R[9], const float kd[3],
+                                const float a[3][5], double out[RF_JSUMS])
+{
+    jac_sums_n(q, npad, R, kd, a, out, 1);
 }
 
 /* The samples whose rendering has a gradient, copied into w->ja (padded with
@@ -1108,7 +1130,15 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
     for (int c = 0; c < 3; c++)
         for (int i = 0; i < 5; i++) a[c][i] = (float)fit->coef[c][i];
     long nj = jac_samples(w);
-    jac_sums(w->ja, nj, Rf, kd, a, s);
+    if (w->gray) {
+        jac_sums1(w->ja, nj, Rf, kd, a, s);
+        /* the three equal channels: J^T J and J^T e three times channel 0's, J^T A the same for each */
+        for (int i = 0; i < 21; i++) s[i] *= 3;
+        for (int i = 0; i < 6; i++) s[111 + i] *= 3;
+        memcpy(s + 51, s + 21, 30 * sizeof s[0]);
+        memcpy(s + 81, s + 21, 30 * sizeof s[0]);
+    } else
+        jac_sums3(w->ja, nj, Rf, kd, a, s);
     double JtA[3][6][5];
     int h = 0;
     for (int i = 0; i < 6; i++)
