@@ -740,6 +740,50 @@ def _grow(img, dirs, fit, p):
     return best
 
 
+def _rim(img, dirs, fit, p):
+    """The found circle's radius moved to the rim, from its steepest colour step: where the limb
+    darkens towards the rim (shading, under blur and anti-aliasing), the largest step along a
+    ray lies up to a pixel inside the outline, while the step's outer flank stays anchored to
+    it. On each of the support's rays (within +-support_flank_px of the circle), the step peak
+    nearest the circle (within inlier_px, at least ray_edge_min, first on ties) gives its outer
+    half-maximum (the first place outwards where the step falls to half the peak sample's);
+    less the frame's edge half-width (the middle one of those half-maxima's distances from
+    their peaks), that is the rim on the ray. The radius moves by the median of the rims'
+    offsets; the centre stays (a centre fitted through the rims moved some of the training
+    renderer's frames past 0.5 px). Fewer than 8 such rays: the circle unchanged. The C++
+    computes it with every support (the same rays). Returns (cx, cy, r)."""
+    cx, cy, r = fit[0], fit[1], fit[2]
+    rho, score, bad = _ray_scores(img, dirs, cx, cy, r, p["support_flank_px"])
+    peak, pos = _peaks(rho, score, p["ray_edge_min"])
+    n = score.shape[1]
+    outer, width = [None] * len(dirs), []
+    for k in range(len(dirs)):
+        if bad[k]:
+            continue
+        best, be = -1, 0.0
+        for i in range(1, n - 1):
+            if peak[k, i - 1]:
+                e = abs(pos[k, i - 1] - r)
+                if e <= p["inlier_px"] and (best < 0 or e < be):
+                    best, be = i, e
+        if best < 0:
+            continue
+        sc = score[k]
+        h = sc[best] / 2.0
+        j = best
+        while j + 1 < n and sc[j + 1] > h:
+            j += 1
+        if j + 1 >= n:
+            continue
+        o = rho[j + 1] + (sc[j] - h) / (sc[j] - sc[j + 1]) * 0.5
+        outer[k] = o
+        width.append(o - pos[k, best - 1])
+    if len(width) < 8:
+        return cx, cy, r
+    hw = sorted(width)[(len(width) - 1) // 2]
+    return cx, cy, r + _median([o - hw - r for o in outer if o is not None])
+
+
 def _support(img, dirs, cx, cy, r, p):
     """Fraction of all rays from (cx, cy) whose colour step has a local maximum within inlier_px
     of radius r of at least support_edge_min and support_ratio times the ray's median step from
@@ -823,7 +867,7 @@ def _find_sphere_v2(frame, p, camera=None):
         if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]):
             raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
                            f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
-    return a[:3]
+    return _rim(frame, dirs, a, p)
 
 
 # ---- the public steps -----------------------------------------------------------------------

@@ -52,6 +52,7 @@ struct Cand {
 
 struct Found {
     double cx, cy, r, support;
+    double rim; // the radius moved to the rim (rim_radius), from the support's rays
 };
 
 // Python's math.floor(x) for the values here (finite, well inside long).
@@ -1042,18 +1043,53 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     return true;
 }
 
+// The outer half-maximum of a ray's step peak at score i (preprocess.py
+// _rim): going outwards, the first place where the step falls to half the
+// peak sample's, linear between samples; false when it does not within the
+// window.
+bool outer_half_max(const RayScores &rs, long i, double *o)
+{
+    const double *sc = rs.score.data();
+    const long n = rs.n;
+    const double hm = sc[i] / 2.0;
+    long j = i;
+    while (j + 1 < n && sc[j + 1] > hm) j++;
+    if (j + 1 >= n) return false;
+    *o = rs.rho[(size_t)j + 1] + (sc[j] - hm) / (sc[j] - sc[j + 1]) * 0.5;
+    return true;
+}
+
+// The circle's radius moved to the rim (preprocess.py _rim) from the rays'
+// outer half-maxima o and their distances from the peaks w: o less the
+// ((m - 1) // 2)-th smallest w, their median's offset from r added to r.
+// Fewer than 8 rays: r. Reorders both.
+double rim_radius(std::vector<double> &outer, std::vector<double> &width, double r)
+{
+    const size_t m = width.size();
+    if (m < 8) return r;
+    std::nth_element(width.begin(), width.begin() + (long)((m - 1) / 2), width.end());
+    const double hw = width[(m - 1) / 2];
+    for (double &o : outer) o = o - hw - r;
+    return r + median_of(outer.data(), outer.size());
+}
+
 // Support of a circle (preprocess.py _support): the fraction of all rays
 // with a step peak within inlier_px of r of at least support_edge_min and
 // support_ratio times the ray's median step 2 inlier_px to support_flank_px
-// off r.
+// off r. The same rays give *rim, the radius moved to the rim (preprocess.py
+// _rim): on each, the peak nearest the circle within inlier_px of at least
+// ray_edge_min (first on ties) and its outer half-maximum.
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
-               const pp_params *p)
+               const pp_params *p, double *rim)
 {
     const int K = (int)dirs.size() / 2;
     thread_local RayScores rs;
     thread_local std::vector<double> fl;
     thread_local std::vector<long> fi;
-    thread_local std::vector<double> near;
+    thread_local std::vector<double> near, outer, width;
+    outer.clear();
+    width.clear();
+    *rim = r;
     const double ratio = p->support_ratio;
     rs.setup(r, p->support_flank_px);
     const long n = rs.n;
@@ -1062,18 +1098,33 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     fi.clear();
     for (long i = 0; i < n; i++)
         if (std::fabs(rs.rho[(size_t)i + 1] - r) >= 2.0 * p->inlier_px) fi.push_back(i);
-    if (fi.empty()) return 0.0;
+    const bool flank = !fi.empty();
     int cnt = 0;
     for (int k = 0; k < K; k++) {
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
         // the peaks near the circle first: the median only for a ray with one
         near.clear();
         const long np = rs.peaks(p->support_edge_min);
+        long best = -1;
+        double be = 0.0, bpos = 0.0;
         for (long m = 0; m < np; m++) {
             const long i = rs.pk[(size_t)m];
-            if (std::fabs(rs.peak_pos(i) - r) <= p->inlier_px) near.push_back(rs.score[(size_t)i]);
+            const double pos = rs.peak_pos(i), e = std::fabs(pos - r);
+            if (e <= p->inlier_px) {
+                near.push_back(rs.score[(size_t)i]);
+                if (rs.score[(size_t)i] >= p->ray_edge_min && (best < 0 || e < be)) {
+                    best = i;
+                    be = e;
+                    bpos = pos;
+                }
+            }
         }
-        if (near.empty()) continue;
+        double o;
+        if (best >= 0 && outer_half_max(rs, best, &o)) {
+            outer.push_back(o);
+            width.push_back(o - bpos);
+        }
+        if (!flank || near.empty()) continue;
         double cmax = near[0];
         for (const double c : near) cmax = std::max(cmax, c);
         fl.resize(fi.size());
@@ -1095,6 +1146,7 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
         const double t = ratio * median_of(fl.data(), fl.size());
         if (cmax >= t) cnt++;
     }
+    *rim = rim_radius(outer, width, r);
     return (double)cnt / K;
 }
 
@@ -1127,7 +1179,7 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
     out->cx = cx;
     out->cy = cy;
     out->r = r;
-    out->support = support(f, dirs, cx, cy, r, p);
+    out->support = support(f, dirs, cx, cy, r, p, &out->rim);
     return true;
 }
 
@@ -1156,9 +1208,10 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
             r = sr;
         }
         if (!ok) continue;
-        const double sup = support(f, dirs, cx, cy, r, p);
+        double rim;
+        const double sup = support(f, dirs, cx, cy, r, p, &rim);
         if (sup > fit->support) {
-            *fit = {cx, cy, r, sup};
+            *fit = {cx, cy, r, sup, rim};
             moved = true;
         }
     }
@@ -1319,7 +1372,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     }
     *ocx = a.cx;
     *ocy = a.cy;
-    *orad = a.r;
+    *orad = a.rim;
     return 0;
 }
 
