@@ -393,9 +393,12 @@ def main(args):
     truths = {}
     for fam in args.families:
         bar = tqdm(total=args.n, desc=f"render {fam}", unit="frame", leave=False) if bars else None
-        tpath = frames.write_family(os.path.join(args.out, fam), fam, args.n, args.seed, cam, args.texture,
-                                    jobs=args.jobs, supersample=args.supersample,
-                                    progress=bar.update if bar else None)
+        try:
+            tpath = frames.write_family(os.path.join(args.out, fam), fam, args.n, args.seed, cam, args.texture,
+                                        jobs=args.jobs, supersample=args.supersample,
+                                        progress=bar.update if bar else None)
+        except RuntimeError as e:
+            sys.exit(f"realscene: {e}")
         if bar:
             bar.close()
         with open(tpath, encoding="utf-8") as f:

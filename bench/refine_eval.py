@@ -49,14 +49,13 @@ def render_corners(family, n, seed, out, texture, camera_file=None):
     cam = camera.load_camera(camera_file)
     tex = render.load_texture(texture)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    params = {"corners": family, "n": n, "seed": seed, "texture": str(Path(texture).resolve()),
+    params = {"corners": family, "n": n, "seed": seed, "texture": frames.texture_record(texture),
               "camera": cam.to_dict()}
-    if (out / "params.json").exists() and (out / "truth.jsonl").exists():
-        if json.loads((out / "params.json").read_text()) == params:
+    try:
+        if frames.reuse_or_clear(str(out), params):
             return out       # rendered before with the same parameters
-    for old in out.glob("*.png"):
-        old.unlink()
+    except RuntimeError as e:
+        raise SystemExit(f"refine_eval: {e}")
     truths = []
     for i in range(n):
         scene = families.draw_scene(family, seed, i, cam)
@@ -69,8 +68,7 @@ def render_corners(family, n, seed, out, texture, camera_file=None):
             raise SystemExit(f"refine_eval: {out / name}: cannot write")
         circle = [round(c, 4) for c in render.circle(scene, cam)]
         truths.append({"file": name, "pose": scene["pose"], "circle": circle, "scene": scene})
-    (out / "truth.jsonl").write_text("".join(json.dumps(t) + "\n" for t in truths))
-    (out / "params.json").write_text(json.dumps(params, indent=1) + "\n")
+    frames.finish_folder(str(out), params, truths)
     return out
 
 

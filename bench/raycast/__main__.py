@@ -40,8 +40,11 @@ def main(argv=None):
     except camera.CameraFileError as e:
         sys.exit(f"raycast: {e}")
     t0 = time.time()
-    path = frames.write_family(args.out, args.family, args.n, args.seed, cam, args.texture,
-                               jobs=args.jobs, supersample=args.supersample)
+    try:
+        path = frames.write_family(args.out, args.family, args.n, args.seed, cam, args.texture,
+                                   jobs=args.jobs, supersample=args.supersample)
+    except RuntimeError as e:
+        sys.exit(f"raycast: {e}")
     print(f"{path}: {args.n} frames of {args.family} in {time.time() - t0:.1f} s")
 
 

@@ -6,8 +6,13 @@ truth.jsonl has one JSON line per frame, in index order:
 with the circle in continuous pixels of the undistorted image and the scene
 the dict that `render.render` drew the frame from (plus "hidden_rim", the
 share of the outline a mount hides). params.json records what made the
-folder; a folder with the same params.json is complete and is reused.
+folder (the texture by its content, so the same image reached by another
+path is the same); a folder with the same params.json is complete and is
+reused. A folder is the tool's own once its params.json is there: only then
+are its frames replaced, and PNG files in a folder without one are never
+deleted.
 """
+import hashlib
 import json
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -32,6 +37,60 @@ def _write_atomic(path, data):
     with open(tmp, "wb") as f:
         f.write(data)
     os.replace(tmp, path)
+
+
+def texture_record(path):
+    """The texture as params.json records it: its file, and its SHA-256 that decides sameness."""
+    with open(path, "rb") as f:
+        digest = hashlib.sha256(f.read()).hexdigest()
+    return {"file": os.path.abspath(path), "sha256": digest}
+
+
+def _comparable(params):
+    """params with the texture reduced to its SHA-256; a params.json of before the texture
+    carried one names a file, whose content is hashed if it is still there."""
+    out = dict(params)
+    tex = out.get("texture")
+    if isinstance(tex, dict):
+        out["texture"] = tex.get("sha256")
+    elif isinstance(tex, str) and os.path.isfile(tex):
+        out["texture"] = texture_record(tex)["sha256"]
+    return out
+
+
+def reuse_or_clear(outdir, params):
+    """True when `outdir` holds a complete set made with `params` (params.json the same, truth.jsonl
+    there). Otherwise make `outdir` the tool's own for a new set and return False: the earlier set's
+    frames and records go, and params.json is written first, so a killed run leaves a folder this
+    tool may clear again. A folder with PNG files and no params.json is someone else's: RuntimeError."""
+    os.makedirs(outdir, exist_ok=True)
+    ppath, tpath = os.path.join(outdir, "params.json"), os.path.join(outdir, "truth.jsonl")
+    old = None
+    if os.path.exists(ppath):
+        try:
+            with open(ppath, encoding="utf-8") as f:
+                old = json.load(f)
+        except (OSError, ValueError):
+            old = {}  # ours, but unreadable: made again
+        if os.path.exists(tpath) and _comparable(old) == _comparable(params):
+            return True
+    pngs = sorted(n for n in os.listdir(outdir) if n.lower().endswith(".png"))
+    if old is None and pngs:
+        raise RuntimeError(f"{outdir}: holds {len(pngs)} PNG file(s) (e.g. {pngs[0]}) and no params.json "
+                           f"of this tool; not replacing them: choose an empty or new folder")
+    if os.path.exists(tpath):
+        os.remove(tpath)
+    _write_atomic(ppath, (json.dumps(dict(params, complete=False), indent=1) + "\n").encode())
+    for name in pngs:
+        os.remove(os.path.join(outdir, name))
+    return False
+
+
+def finish_folder(outdir, params, truths):
+    """truth.jsonl, then params.json: from then on the folder is complete and reused."""
+    lines = "".join(json.dumps(t) + "\n" for t in truths)
+    _write_atomic(os.path.join(outdir, "truth.jsonl"), lines.encode())
+    _write_atomic(os.path.join(outdir, "params.json"), (json.dumps(params, indent=1) + "\n").encode())
 
 
 def make_frame(family, seed, index, cam, tex, supersample=4):
@@ -68,23 +127,13 @@ def _job(args):
 def write_family(outdir, family, n, seed, cam, texture_path, jobs=1, supersample=4, progress=None):
     """Render frames 0..n-1 of `family` into `outdir` and write truth.jsonl; reuse a complete folder
     made with the same parameters. `progress(k)` is called as frames finish."""
-    os.makedirs(outdir, exist_ok=True)
     params = {"family": family, "n": n, "seed": seed, "camera": cam.to_dict(),
-              "texture": os.path.abspath(texture_path), "supersample": supersample, "version": 1}
-    ppath = os.path.join(outdir, "params.json")
+              "texture": texture_record(texture_path), "supersample": supersample, "version": 1}
     tpath = os.path.join(outdir, "truth.jsonl")
-    if os.path.exists(ppath) and os.path.exists(tpath):
-        with open(ppath, encoding="utf-8") as f:
-            if json.load(f) == params:
-                if progress:
-                    progress(n)
-                return tpath
-    for stale in (ppath, tpath):
-        if os.path.exists(stale):
-            os.remove(stale)
-    for old in os.listdir(outdir):
-        if old.endswith(".png"):
-            os.remove(os.path.join(outdir, old))
+    if reuse_or_clear(outdir, params):
+        if progress:
+            progress(n)
+        return tpath
     truths = [None] * n
     work = [(family, seed, i, outdir, supersample) for i in range(n)]
     if jobs > 1:
@@ -103,7 +152,5 @@ def write_family(outdir, family, n, seed, cam, texture_path, jobs=1, supersample
     names = [t["file"] for t in truths]
     if len(set(names)) != len(names):
         raise RuntimeError(f"{outdir}: two frames drew the same pose; use another seed")
-    lines = "".join(json.dumps(t) + "\n" for t in truths)
-    _write_atomic(tpath, lines.encode())
-    _write_atomic(ppath, (json.dumps(params, indent=1) + "\n").encode())
+    finish_folder(outdir, params, truths)
     return tpath

@@ -226,3 +226,25 @@ def test_edge_and_refuse_families(small_texture):
     far = camera.project(cam.at(distance_mm=s["distance_mm"]), [c], shift=s["shift_px"])[0]
     hit, _, _, _ = render.trace(s, cam, [far[0], *render.circle(s, cam)[:1]], [far[1], render.circle(s, cam)[1]])
     assert list(hit) == [render.OTHERS, render.SPHERE]     # both spheres in the frame, each where it projects
+
+
+def test_family_folder_reuse_and_foreign_frames(tmp_path, small_texture):
+    """A folder made before is reused when the same texture is reached by another path; a new
+    set replaces only the tool's own frames; PNG files in a folder it did not make are kept."""
+    cam = camera.Camera()
+    out = tmp_path / "fam"
+    frames.write_family(str(out), "clean", 1, 3, cam, small_texture, supersample=1)
+    made = {p.name: p.stat().st_mtime_ns for p in out.glob("*.png")}
+    link = tmp_path / "elsewhere.png"
+    link.symlink_to(small_texture)
+    frames.write_family(str(out), "clean", 1, 3, cam, str(link), supersample=1)
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.png")} == made   # reused, not rendered
+    frames.write_family(str(out), "clean", 1, 4, cam, small_texture, supersample=1)  # another seed
+    assert len(list(out.glob("*.png"))) == 1 and set(p.name for p in out.glob("*.png")) != set(made)
+
+    theirs = tmp_path / "theirs"
+    theirs.mkdir()
+    (theirs / "photo.png").write_bytes(b"not ours")
+    with pytest.raises(RuntimeError, match="no params.json"):
+        frames.write_family(str(theirs), "clean", 1, 3, cam, small_texture, supersample=1)
+    assert (theirs / "photo.png").read_bytes() == b"not ours"
