@@ -740,6 +740,28 @@ def _grow(img, dirs, fit, p):
     return best
 
 
+def _outermost(img, dirs, fit, p):
+    """A weakly supported sphere (support below (1 + min_support) / 2) refitted through the
+    outermost edges near it: on an arc where the limb and the backdrop have nearly the same
+    colour, the rays find only a texture band or the limb's shading 1.5-2.5 px inside the rim,
+    and the fit through the candidates nearest it leans towards them; the rim is the sphere's
+    outermost edge. The later passes' rays from its centre; on each, the outermost edge
+    candidate from 1.5 inlier_px inside the circle to 2 inlier_px outside (farther out, a post
+    or the backdrop's clutter); one robust fit (as every pass) through these. Returns (cx, cy,
+    r, the fit's support), the fit unchanged when the refit fails."""
+    cx, cy, r = fit[0], fit[1], fit[2]
+    win = p["fine_window_px"] + p["fine_window_frac"] * r
+    lo, hi = r - 1.5 * p["inlier_px"], r + 2.0 * p["inlier_px"]
+    cands = []
+    for c in _ray_edges(img, dirs, cx, cy, r, win, p):
+        sel = [x for x in (c or ()) if lo <= x <= hi]
+        cands.append([sel[-1]] if sel else None)
+    f = _fit_rays(cands, dirs, cx, cy, cx, cy, r, p)
+    if f is None or not f[2] > 1.0:
+        return fit
+    return f[0], f[1], f[2], fit[3]
+
+
 def _rim(img, dirs, fit, p):
     """The found circle's radius moved to the rim, from its steepest colour step: where the limb
     darkens towards the rim (shading, under blur and anti-aliasing), the largest step along a
@@ -867,6 +889,8 @@ def _find_sphere_v2(frame, p, camera=None):
         if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]):
             raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
                            f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
+    if a[3] < decisive:
+        a = _outermost(frame, dirs, a, p)
     return _rim(frame, dirs, a, p)
 
 

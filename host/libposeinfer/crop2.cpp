@@ -1218,6 +1218,49 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
     return moved;
 }
 
+// A weakly supported sphere refitted through the outermost edge near it
+// (preprocess.py _outermost): where an arc of the rim has no colour step,
+// the rays there find a band inside it, and the fit through the candidates
+// nearest it leans towards them. The later passes' rays; on each, the
+// outermost candidate from 1.5 inlier_px inside the circle to 2 inlier_px
+// outside; one robust fit through these, and the rim radius of the new
+// circle (support's). False (fit unchanged) when the refit fails.
+bool outermost(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit)
+{
+    const int K = (int)dirs.size() / 2;
+    thread_local RayEdges re, one;
+    const double r = fit->r;
+    ray_edges(f, dirs, fit->cx, fit->cy, r, p->fine_window_px + p->fine_window_frac * r,
+              p->ray_edge_min, 0.0, re);
+    const double lo = r - 1.5 * p->inlier_px, hi = r + 2.0 * p->inlier_px;
+    one.ok.assign((size_t)K, 0);
+    one.off.assign((size_t)K + 1, 0);
+    one.cand.clear();
+    for (int k = 0; k < K; k++) {
+        one.off[(size_t)k] = (int)one.cand.size();
+        if (!re.ok[(size_t)k]) continue;
+        one.ok[(size_t)k] = 1;
+        bool any = false;
+        double sel = 0.0;
+        for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++) {
+            const double x = re.cand[(size_t)i];
+            if (lo <= x && x <= hi) {
+                sel = x;
+                any = true;
+            }
+        }
+        if (any) one.cand.push_back(sel);
+    }
+    one.off[(size_t)K] = (int)one.cand.size();
+    double cx = fit->cx, cy = fit->cy, rr = r;
+    if (!fit_rays(one, dirs, fit->cx, fit->cy, &cx, &cy, &rr, p) || !(rr > 1.0)) return false;
+    fit->cx = cx;
+    fit->cy = cy;
+    fit->r = rr;
+    support(f, dirs, cx, cy, rr, p, &fit->rim);
+    return true;
+}
+
 double rim_outside(double cx, double cy, double r, int h, int w)
 {
     // the 256 directions, computed once per thread
@@ -1370,9 +1413,12 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
             return -1;
         }
     }
-    *ocx = a.cx;
-    *ocy = a.cy;
-    *orad = a.rim;
+    // a weakly supported sphere: refitted through the outermost edges near it
+    Found fin = a;
+    if (fin.support < decisive) outermost(f, dirs, p, &fin);
+    *ocx = fin.cx;
+    *ocy = fin.cy;
+    *orad = fin.rim;
     return 0;
 }
 
