@@ -339,16 +339,22 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
 // The accumulator slots an edge at (x, y) with unit gradient (ux, uy) votes
 // for at signed radii sr[k]: boff[k] + Y * ws + X for the cell X = floor(x -
 // sr ux + 0.5), Y = floor(y - sr uy + 0.5), trash + k outside (a slot per k:
-// votes outside in a row do not wait for each other). Its own loop so that
-// it vectorises.
-KERN2_CLONES void vote_cells(const double *sr, const int32_t *boff, int n, double x, double y,
-                             double ux, double uy, int ws, int hs, int32_t trash, int32_t *cell)
+// votes outside in a row do not wait for each other). For m edges at once
+// (n slots each, edge i's at cell + i n): one call and one counting loop per
+// batch, not per edge (the votes a third cheaper). Its own loop so that it
+// vectorises.
+KERN2_CLONES void vote_cells(const double *sr, const int32_t *boff, int n, const int32_t *ex,
+                             const int32_t *ey, const double *eux, const double *euy, size_t m,
+                             int ws, int hs, int32_t trash, int32_t *cell)
 {
     // x, y, sr are within the frame's size (<= 16384 * 2): floor32 is exact
-    for (int k = 0; k < n; k++) {
-        const int32_t X = floor32(x - sr[k] * ux + 0.5), Y = floor32(y - sr[k] * uy + 0.5);
-        const int32_t in = (X >= 0) & (X < ws) & (Y >= 0) & (Y < hs);
-        cell[k] = in ? boff[k] + Y * ws + X : trash + k;
+    for (size_t i = 0; i < m; i++, cell += n) {
+        const double x = ex[i], y = ey[i], ux = eux[i], uy = euy[i];
+        for (int k = 0; k < n; k++) {
+            const int32_t X = floor32(x - sr[k] * ux + 0.5), Y = floor32(y - sr[k] * uy + 0.5);
+            const int32_t in = (X >= 0) & (X < ws) & (Y >= 0) & (Y < hs);
+            cell[k] = in ? boff[k] + Y * ws + X : trash + k;
+        }
     }
 }
 
@@ -524,7 +530,8 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         acc.assign((size_t)nb * plane + 2 * (size_t)nr, 0);
     }
     std::vector<double> srs(2 * (size_t)nr);
-    std::vector<int32_t> cell(2 * (size_t)nr), boff(2 * (size_t)nr);
+    const size_t batch = 16; // edges per vote_cells call
+    std::vector<int32_t> cell(batch * 2 * (size_t)nr), boff(2 * (size_t)nr);
     for (int sg = 0; sg < 2; sg++)
         for (int k = 0; k < nr; k++) {
             srs[(size_t)sg * nr + k] = (sg == 0 ? 1.0 : -1.0) * (double)(lo + k);
@@ -534,13 +541,15 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     unit_gradients(e.gx.data(), e.gy.data(), e.n, ux, uy);
     // a vote outside the plane goes to one of the slots after the last bin, never read
     const int32_t trash = (int32_t)((size_t)nb * plane);
-    for (size_t i = 0; i < e.n; i++) {
-        vote_cells(srs.data(), boff.data(), 2 * nr, e.x[i], e.y[i], ux[i], uy[i], ws, hs, trash,
-                   cell.data());
+    for (size_t i = 0; i < e.n; i += batch) {
+        const size_t m = std::min(batch, e.n - i);
+        vote_cells(srs.data(), boff.data(), 2 * nr, &e.x[i], &e.y[i], &ux[i], &uy[i], m, ws, hs,
+                   trash, cell.data());
+        const size_t nc = m * 2 * (size_t)nr;
         if (narrow)
-            for (int k = 0; k < 2 * nr; k++) acc16[(size_t)cell[(size_t)k]]++;
+            for (size_t k = 0; k < nc; k++) acc16[(size_t)cell[k]]++;
         else
-            for (int k = 0; k < 2 * nr; k++) acc[(size_t)cell[(size_t)k]]++;
+            for (size_t k = 0; k < nc; k++) acc[(size_t)cell[k]]++;
     }
     // 3 x 3 box sums per bin (zeros outside), then each bin plus the next;
     // per cell its best bin (first on ties). The box sum is linear: it is
