@@ -308,6 +308,18 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
     e.n = ne;
 }
 
+// near[i] = 1 where edge (x[i], y[i]) lies within d2lo <= d^2 <= d2hi of
+// (Xc, Yc), else 0 (in doubles: exact for any frame size). Its own loop so
+// that it vectorises.
+KERN2_CLONES void annulus(const int32_t *x, const int32_t *y, size_t n, double Xc, double Yc,
+                          double d2lo, double d2hi, uint8_t *near)
+{
+    for (size_t i = 0; i < n; i++) {
+        const double dx = x[i] - Xc, dy = y[i] - Yc, d2 = dx * dx + dy * dy;
+        near[i] = (uint8_t)((d2 >= d2lo) & (d2 <= d2hi));
+    }
+}
+
 // Radius (reduced pixels) about centre (Xc, Yc) between lo and hi: histogram
 // of the distances of the edges whose gradient points along the radius,
 // smoothed 1-2-1. -1 when there is none.
@@ -315,7 +327,24 @@ long radius_vote(const Edges &e, long Xc, long Yc, long lo, long hi)
 {
     std::vector<long> hist((size_t)(hi - lo + 3), 0); // padded by one bin each side
     bool any = false;
+    // only edges at distances that round to lo .. hi can count: those with
+    // (lo - 1)^2 < d^2 < (hi + 1)^2, found first by a vector loop; the exact
+    // test below then sees them in the same order
+    thread_local std::vector<uint8_t> near;
+    thread_local std::vector<uint32_t> idx;
+    if (near.size() < e.n) {
+        near.resize(e.n);
+        idx.resize(e.n);
+    }
+    annulus(e.x.data(), e.y.data(), e.n, (double)Xc, (double)Yc, (double)((lo - 1) * (lo - 1)),
+            (double)((hi + 1) * (hi + 1)), near.data());
+    size_t nn = 0;
     for (size_t i = 0; i < e.n; i++) {
+        idx[nn] = (uint32_t)i;
+        nn += near[i];
+    }
+    for (size_t q = 0; q < nn; q++) {
+        const size_t i = idx[q];
         const int64_t dx = e.x[i] - Xc, dy = e.y[i] - Yc, gx = e.gx[i], gy = e.gy[i];
         const int64_t d2 = dx * dx + dy * dy, dot = dx * gx + dy * gy, m2 = gx * gx + gy * gy;
         if (!(100 * dot * dot >= 81 * d2 * m2)) continue;
