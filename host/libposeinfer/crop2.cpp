@@ -33,7 +33,8 @@ namespace
 // Working memory, kept between frames (per thread): fresh allocations of
 // these sizes cost more in page faults than the work itself.
 struct Scratch {
-    std::vector<int32_t> red, row, M, GX, GY, V, D, acc, box, hsum, vmax, bmax;
+    std::vector<uint8_t> red; // the reduced image: block means fit a byte
+    std::vector<int32_t> row, M, GX, GY, V, D, acc, box, hsum, vmax, bmax;
     std::vector<int32_t> keep;
     std::vector<uint16_t> acc16, box16, hsum16, vmax16, bmax16;
 };
@@ -102,9 +103,9 @@ KERN2_CLONES void block_sums(const uint8_t *p, size_t stride, int s, size_t nbyt
 // q[i] = (v[i] + half) / n as (v[i] + half) * mul >> sh (mul, sh checked exact
 // for every possible sum), for a row of reduced pixels.
 KERN2_CLONES void block_means(const uint16_t *v, size_t n, uint32_t half, uint32_t mul, int sh,
-                              int32_t *q)
+                              uint8_t *q)
 {
-    for (size_t i = 0; i < n; i++) q[i] = (int32_t)((((uint32_t)v[i] + half) * mul) >> sh);
+    for (size_t i = 0; i < n; i++) q[i] = (uint8_t)((((uint32_t)v[i] + half) * mul) >> sh);
 }
 
 // A multiplier and shift with (v * mul) >> sh == v / n for every v in 0 ..
@@ -126,7 +127,7 @@ bool exact_divider(uint32_t n, uint32_t vmax, uint32_t *mul, int *sh)
 }
 
 // Block means of s x s blocks, rounded half up; the remainder dropped.
-void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<int32_t> &red,
+void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<uint8_t> &red,
             int *hs, int *ws)
 {
     *hs = h / s;
@@ -170,7 +171,7 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
             const uint8_t *q = bgr + ((size_t)Y * s + y) * stride;
             for (size_t i = 0; i < nbytes; i++) row[i] += q[i];
         }
-        int32_t *o = &red[(size_t)Y * nout];
+        uint8_t *o = &red[(size_t)Y * nout];
         for (int X = 0; X < *ws; X++) {
             const int32_t *q = &row[(size_t)X * s * 3];
             int32_t b = 0, g = 0, r = 0;
@@ -179,9 +180,9 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
                 g += q[1];
                 r += q[2];
             }
-            o[3 * X] = (b + (int32_t)half) / (int32_t)n; // non-negative: / floors
-            o[3 * X + 1] = (g + (int32_t)half) / (int32_t)n;
-            o[3 * X + 2] = (r + (int32_t)half) / (int32_t)n;
+            o[3 * X] = (uint8_t)((b + (int32_t)half) / (int32_t)n); // non-negative: / floors
+            o[3 * X + 1] = (uint8_t)((g + (int32_t)half) / (int32_t)n);
+            o[3 * X + 2] = (uint8_t)((r + (int32_t)half) / (int32_t)n);
         }
     }
 }
@@ -201,7 +202,7 @@ struct Edges {
 // One row of the gradient image: per pixel the channel of the largest
 // magnitude^2 (first on ties) and its gx, gy. Planar loops so that they
 // vectorise; magnitudes^2 fit int32 (|g| <= 4 * 255 * 2).
-KERN2_CLONES void gradient_row(const int32_t *r0, const int32_t *r1, const int32_t *r2, int gw,
+KERN2_CLONES void gradient_row(const uint8_t *r0, const uint8_t *r1, const uint8_t *r2, int gw,
                                int32_t *V, int32_t *D, int32_t *m, int32_t *ox, int32_t *oy)
 {
     const int nb = (gw + 2) * 3;
@@ -247,7 +248,7 @@ KERN2_CLONES void nms_row(const int32_t *mc, long P, const int32_t *gx, const in
     }
 }
 
-void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edges &e)
+void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edges &e)
 {
     const int gh = hs - 2, gw = ws - 2;
     const size_t P = (size_t)gw + 2;
@@ -266,7 +267,7 @@ void edges(const std::vector<int32_t> &red, int hs, int ws, double edge_min, Edg
     V.resize(nb);
     D.resize(nb);
     for (int i = 0; i < gh; i++) {
-        const int32_t *r0 = &red[(size_t)i * nb];
+        const uint8_t *r0 = &red[(size_t)i * nb];
         gradient_row(r0, r0 + nb, r0 + 2 * nb, gw, V.data(), D.data(), &M[(size_t)(i + 1) * P + 1],
                      &GX[(size_t)i * gw], &GY[(size_t)i * gw]);
     }
@@ -512,7 +513,7 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const int s = std::max(1, std::min(h, w) / p->coarse_size);
     *s_out = s;
     int hs, ws;
-    std::vector<int32_t> &red = scratch.red;
+    std::vector<uint8_t> &red = scratch.red;
     reduce(bgr, stride, w, h, s, red, &hs, &ws);
     if (hs < 8 || ws < 8) return out;
     thread_local Edges e;
