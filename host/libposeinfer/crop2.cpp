@@ -1013,6 +1013,21 @@ KERN2_CLONES void bin_slots(const double *rho, const double *ux, const double *u
     }
 }
 
+// The bins a candidate can fall in over a block of shifts about (DX, DY):
+// lo[i] .. hi[i], from its bin at (DX, DY) less and plus hw[i] bins (the
+// most dx ux + dy uy moves over the block, widened by far more than
+// rounding). A loop of its own so that it vectorises.
+KERN2_CLONES void bin_bounds(const double *rho, const double *ux, const double *uy,
+                             const double *hw, size_t n, double DX, double DY, double base,
+                             double rel, int32_t *lo, int32_t *hi)
+{
+    for (size_t i = 0; i < n; i++) {
+        const double v = ((rho[i] - (DX * ux[i] + DY * uy[i])) - base) * rel;
+        lo[i] = floor32(v - hw[i]);
+        hi[i] = floor32(v + hw[i]);
+    }
+}
+
 // The (shift, radius) most rays agree on (preprocess.py _consensus): for
 // each shift on the grid, the radius bin of each candidate, then the bin
 // reached by the most rays (a ray counts once per bin: on a busy backdrop a
@@ -1052,28 +1067,83 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     const size_t hn = (size_t)nb + 1;
     hist.resize(4 * hn);
     int32_t *h0 = hist.data(), *h1 = h0 + hn, *h2 = h1 + hn, *h3 = h2 + hn;
-    long best = 0, bg = -1, bb = 0;
-    for (long g = 0; g < G * G; g++) {
-        const double DY = (double)(g / G - W) * step, DX = (double)(g % G - W) * step;
-        bin_slots(rho.data(), ux.data(), uy.data(), first.data(), n, DX, DY, base, step, inv,
-                  (int32_t)nb, bi.data(), slot.data());
-        std::fill(hist.begin(), hist.end(), 0);
-        size_t i = 0;
-        for (; i + 4 <= n; i += 4) {
-            h0[slot[i]]++;
-            h1[slot[i + 1]]++;
-            h2[slot[i + 2]]++;
-            h3[slot[i + 3]]++;
-        }
-        for (; i < n; i++) h0[slot[i]]++;
-        for (long b = 0; b < nb; b++) {
-            const long v = (long)h0[b] + h1[b] + h2[b] + h3[b];
-            if (v > best) {
-                best = v;
-                bg = g;
-                bb = b;
+    // Branch and bound over blocks of CB x CB shifts: for a block, the
+    // bins each candidate can fall in over all its shifts (from the range of
+    // dx ux + dy uy over the block, widened by far more than rounding) give
+    // per bin the most rays any of its shifts can count there. Blocks are
+    // counted shift by shift in decreasing order of that bound until it
+    // falls below the best count so far: a block skipped holds no shift
+    // reaching the best, so the (first in grid order, then bin order) winner
+    // is the same as counting every shift.
+    const long CB = 3, NBk = (G + CB - 1) / CB;
+    thread_local std::vector<int32_t> diff, blo, bhi;
+    thread_local std::vector<double> hw;
+    thread_local std::vector<std::pair<long, long>> blocks;
+    diff.resize(hn + 1);
+    blo.resize(n);
+    bhi.resize(n);
+    hw.resize(n);
+    blocks.clear();
+    const double rel = 1.0 / step, half = (double)(CB - 1) / 2.0;
+    for (size_t i = 0; i < n; i++) hw[i] = half * (std::fabs(ux[i]) + std::fabs(uy[i])) + 1e-6;
+    for (long by = 0; by < NBk; by++)
+        for (long bx = 0; bx < NBk; bx++) {
+            // the block's middle (a block cut by the grid's end lies within
+            // the same half-width of it)
+            const double DX = ((double)(bx * CB - W) + half) * step;
+            const double DY = ((double)(by * CB - W) + half) * step;
+            bin_bounds(rho.data(), ux.data(), uy.data(), hw.data(), n, DX, DY, base, rel,
+                       blo.data(), bhi.data());
+            std::fill(diff.begin(), diff.end(), 0);
+            int32_t prev = -1;
+            const int32_t top = (int32_t)nb - 1;
+            for (size_t i = 0; i < n; i++) {
+                if (first[i]) prev = -1;
+                const int32_t lo = std::max(blo[i], prev + 1), hi = std::min(bhi[i], top);
+                if (lo > hi) continue;
+                diff[(size_t)lo]++;
+                diff[(size_t)hi + 1]--;
+                prev = hi;
             }
+            long run = 0, ub = 0;
+            for (long b = 0; b < nb; b++) {
+                run += diff[(size_t)b];
+                ub = std::max(ub, run);
+            }
+            blocks.emplace_back(ub, by * NBk + bx);
         }
+    std::stable_sort(blocks.begin(), blocks.end(),
+                     [](const std::pair<long, long> &u, const std::pair<long, long> &v) {
+                         return u.first > v.first;
+                     });
+    long best = 0, bg = -1, bb = 0;
+    for (const auto &blk : blocks) {
+        if (blk.first < best || blk.first == 0) break;
+        const long by = blk.second / NBk, bx = blk.second % NBk;
+        for (long gy = by * CB; gy < std::min(G, by * CB + CB); gy++)
+            for (long gx = bx * CB; gx < std::min(G, bx * CB + CB); gx++) {
+                const long g = gy * G + gx;
+                const double DY = (double)(gy - W) * step, DX = (double)(gx - W) * step;
+                bin_slots(rho.data(), ux.data(), uy.data(), first.data(), n, DX, DY, base, step,
+                          inv, (int32_t)nb, bi.data(), slot.data());
+                std::fill(hist.begin(), hist.end(), 0);
+                size_t i = 0;
+                for (; i + 4 <= n; i += 4) {
+                    h0[slot[i]]++;
+                    h1[slot[i + 1]]++;
+                    h2[slot[i + 2]]++;
+                    h3[slot[i + 3]]++;
+                }
+                for (; i < n; i++) h0[slot[i]]++;
+                for (long b = 0; b < nb; b++) {
+                    const long v = (long)h0[b] + h1[b] + h2[b] + h3[b];
+                    if (v > best || (v == best && v > 0 && g < bg)) {
+                        best = v;
+                        bg = g;
+                        bb = b;
+                    }
+                }
+            }
     }
     if (bg < 0) return false;
     *dx = (double)(bg % G - W) * step;
