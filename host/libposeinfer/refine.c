@@ -703,39 +703,65 @@ static void luma_pass(rf_work *w, long n)
  * T (1, n), T obs (1, n) (the sums of obs and obs^2 come from pixel_set). */
 RF_CLONES static void fit_sums(const rf_work *w, long npad, int nch, double q[3][20])
 {
-    for (int c = 0; c < nch; c++) {
-        vd acc[18];
-        for (int i = 0; i < 18; i++) acc[i] = (vd){0};
-        for (long k = 0; k < npad; k += RF_VL / 2) {
-            vd t = vdload(w->a[A_V0 + c] + k), o = vdload(w->a[A_O0 + c] + k);
+    /* the normals and their products, shared by the channels, once per block
+     * of RF_JBLOCK samples; each channel's lanes add in sample order, as a
+     * loop over all samples per channel would */
+    enum { NB = RF_JBLOCK / (RF_VL / 2) };
+    vd nn[9][NB], acc[3][18];
+    for (int c = 0; c < 3; c++)
+        for (int i = 0; i < 18; i++) acc[c][i] = (vd){0};
+    for (long k0 = 0; k0 < npad; k0 += RF_JBLOCK) {
+        int nb = (int)((npad - k0 < RF_JBLOCK ? npad - k0 : RF_JBLOCK) / (RF_VL / 2));
+        for (int b = 0; b < nb; b++) {
+            long k = k0 + (long)b * (RF_VL / 2);
             vd n0 = vdload(w->a[A_NX] + k), n1 = vdload(w->a[A_NY] + k),
                n2 = vdload(w->a[A_NZ] + k);
-            vd t2 = t * t, to = t * o;
-            acc[0] += t2;
-            acc[1] += t2 * n0;
-            acc[2] += t2 * n1;
-            acc[3] += t2 * n2;
-            acc[4] += t2 * (n0 * n0);
-            acc[5] += t2 * (n0 * n1);
-            acc[6] += t2 * (n0 * n2);
-            acc[7] += t2 * (n1 * n1);
-            acc[8] += t2 * (n1 * n2);
-            acc[9] += t2 * (n2 * n2);
-            acc[10] += t;
-            acc[11] += t * n0;
-            acc[12] += t * n1;
-            acc[13] += t * n2;
-            acc[14] += to;
-            acc[15] += to * n0;
-            acc[16] += to * n1;
-            acc[17] += to * n2;
+            nn[0][b] = n0;
+            nn[1][b] = n1;
+            nn[2][b] = n2;
+            nn[3][b] = n0 * n0;
+            nn[4][b] = n0 * n1;
+            nn[5][b] = n0 * n2;
+            nn[6][b] = n1 * n1;
+            nn[7][b] = n1 * n2;
+            nn[8][b] = n2 * n2;
         }
-        for (int i = 0; i < 18; i++) {
-            double sum = 0;
-            for (int l = 0; l < RF_VL / 2; l++) sum += acc[i][l];
-            q[c][i] = sum;
+        for (int c = 0; c < nch; c++) {
+            vd a[18];
+            memcpy(a, acc[c], sizeof a);
+            for (int b = 0; b < nb; b++) {
+                long k = k0 + (long)b * (RF_VL / 2);
+                vd t = vdload(w->a[A_V0 + c] + k), o = vdload(w->a[A_O0 + c] + k);
+                vd n0 = nn[0][b], n1 = nn[1][b], n2 = nn[2][b];
+                vd t2 = t * t, to = t * o;
+                a[0] += t2;
+                a[1] += t2 * n0;
+                a[2] += t2 * n1;
+                a[3] += t2 * n2;
+                a[4] += t2 * nn[3][b];
+                a[5] += t2 * nn[4][b];
+                a[6] += t2 * nn[5][b];
+                a[7] += t2 * nn[6][b];
+                a[8] += t2 * nn[7][b];
+                a[9] += t2 * nn[8][b];
+                a[10] += t;
+                a[11] += t * n0;
+                a[12] += t * n1;
+                a[13] += t * n2;
+                a[14] += to;
+                a[15] += to * n0;
+                a[16] += to * n1;
+                a[17] += to * n2;
+            }
+            memcpy(acc[c], a, sizeof a);
         }
     }
+    for (int c = 0; c < nch; c++)
+        for (int i = 0; i < 18; i++) {
+            double sum = 0;
+            for (int l = 0; l < RF_VL / 2; l++) sum += acc[c][i][l];
+            q[c][i] = sum;
+        }
 }
 
 /* A x = b for symmetric positive semi-definite A (k <= 6), with the tiny ridge
