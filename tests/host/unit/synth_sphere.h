@@ -2,7 +2,8 @@
  * tests of refine.c and confidence.c, written from docs/conventions.md
  * (rays in millimetres, supersampled, nearest texel, a shading term), not
  * from refine.c's own geometry. Static functions: each test file that
- * includes it gets its own copy. */
+ * includes it gets its own copy. Also the cmocka fixture the refinement
+ * tests start from (synth_setup, synth_teardown). */
 #ifndef SYNTH_SPHERE_H
 #define SYNTH_SPHERE_H
 
@@ -10,6 +11,8 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+
+#include "refine.h"
 
 #ifndef M_PI
 #define M_PI 3.14159265358979323846
@@ -97,6 +100,40 @@ static inline double geodesic_deg(const double A[3][3], const double B[3][3])
 static inline double r_true(void)
 {
     return F_PX * R_MM / sqrt(D_MM * D_MM - R_MM * R_MM);
+}
+
+/* What a refinement test starts from: the texture of seed 7, its pyramid
+ * and working memory. cmocka_unit_test_setup_teardown(test, synth_setup,
+ * synth_teardown) hands it to the test as *state. */
+typedef struct synth_fixture {
+    uint8_t *tex;
+    rf_texture *t;
+    rf_work *w;
+} synth_fixture;
+
+static inline int synth_teardown(void **state)
+{
+    synth_fixture *f = *state;
+    if (f) {
+        rf_work_free(f->w);
+        rf_texture_free(f->t);
+        free(f->tex);
+        free(f);
+    }
+    return 0;
+}
+
+static inline int synth_setup(void **state)
+{
+    char err[RF_TEXTURE_ERR_LEN];
+    synth_fixture *f = calloc(1, sizeof *f);
+    *state = f;
+    if (!f) return -1;
+    f->tex = make_texture(7);
+    rf_image ti = {f->tex, TW, TH, 3, TW * 3};
+    f->t = rf_texture_new(&ti, err);
+    f->w = rf_work_new();
+    return f->tex && f->t && f->w ? 0 : -1;
 }
 
 #endif

@@ -100,13 +100,11 @@ static uint8_t *to_gray(const uint8_t *img)
 
 static void convergence_check(void **state)
 {
-    (void)state;
+    const synth_fixture *f = *state;
+    const uint8_t *tex = f->tex;
+    const rf_texture *t = f->t;
+    rf_work *w = f->w;
     char err[256];
-    uint8_t *tex = make_texture(7);
-    rf_image ti = {tex, TW, TH, 3, TW * 3};
-    rf_texture *t = rf_texture_new(&ti, err);
-    assert_non_null(t);
-    rf_work *w = rf_work_new();
     double pose[3] = {8.0, -14.0, 21.0}, R[3][3], R0[3][3], moved, r = r_true();
     double cx = 322.4, cy = 251.3;
     rf_euler_to_matrix(pose, R);
@@ -147,9 +145,6 @@ static void convergence_check(void **state)
     assert_true(moved <= 0.3 && rf_rotation_deg(o.R, R) < 0.1);
     free(gray);
     free(img);
-    rf_work_free(w);
-    rf_texture_free(t);
-    free(tex);
 }
 
 int main(void)
@@ -157,7 +152,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(confidence_rules),
         cmocka_unit_test(rotation_angle),
-        cmocka_unit_test(convergence_check),
+        cmocka_unit_test_setup_teardown(convergence_check, synth_setup, synth_teardown),
     };
     return cmocka_run_group_tests_name("confidence", tests, NULL, NULL);
 }

@@ -20,13 +20,11 @@
 
 static void refines_pose_and_circle(void **state)
 {
-    (void)state;
+    const synth_fixture *f = *state;
+    const uint8_t *tex = f->tex;
+    const rf_texture *t = f->t;
+    rf_work *w = f->w;
     char err[256];
-    uint8_t *tex = make_texture(7);
-    rf_image ti = {tex, TW, TH, 3, TW * 3};
-    rf_texture *t = rf_texture_new(&ti, err);
-    assert_non_null(t);
-    rf_work *w = rf_work_new();
     const double poses[2][3] = {{6.0, -11.0, 18.5}, {-27.0, 24.0, -4.0}};
     for (int k = 0; k < 2; k++) {
         double R[3][3], R0[3][3], Rp[3][3];
@@ -77,9 +75,6 @@ static void refines_pose_and_circle(void **state)
         free(img);
         free(other);
     }
-    rf_work_free(w);
-    rf_texture_free(t);
-    free(tex);
 }
 
 static void refuses_bad_input(void **state)
@@ -148,13 +143,11 @@ static void euler_roundtrip(void **state)
  * cut by the frame's edge (a partial set of samples) still refines. */
 static void frame_layouts_agree(void **state)
 {
-    (void)state;
+    const synth_fixture *f = *state;
+    const uint8_t *tex = f->tex;
+    const rf_texture *t = f->t;
+    rf_work *w = f->w;
     char err[256];
-    uint8_t *tex = make_texture(7);
-    rf_image ti = {tex, TW, TH, 3, TW * 3};
-    rf_texture *t = rf_texture_new(&ti, err);
-    assert_non_null(t);
-    rf_work *w = rf_work_new();
     double R[3][3], R0[3][3], e[3] = {-12.0, 7.5, 21.0}, e0[3] = {-11.6, 7.2, 21.3};
     rf_euler_to_matrix(e, R);
     rf_euler_to_matrix(e0, R0);
@@ -200,16 +193,15 @@ static void frame_layouts_agree(void **state)
     free(bgra);
     free(g3);
     free(g1);
-    rf_work_free(w);
-    rf_texture_free(t);
-    free(tex);
 }
 
 int main(void)
 {
     const struct CMUnitTest tests[] = {
-        cmocka_unit_test(refines_pose_and_circle), cmocka_unit_test(frame_layouts_agree),
-        cmocka_unit_test(refuses_bad_input),       cmocka_unit_test(base64),
+        cmocka_unit_test_setup_teardown(refines_pose_and_circle, synth_setup, synth_teardown),
+        cmocka_unit_test_setup_teardown(frame_layouts_agree, synth_setup, synth_teardown),
+        cmocka_unit_test(refuses_bad_input),
+        cmocka_unit_test(base64),
         cmocka_unit_test(euler_roundtrip),
     };
     return cmocka_run_group_tests_name("refine", tests, NULL, NULL);
