@@ -24,7 +24,8 @@ localisation refuses is recorded as refused in the report and left out of
 the times; the bench goes on with the others.
 
 The report rewrites --out; sections of the old file that this script does
-not write (any "## " heading other than "## Reading") are kept at its end.
+not write (any "## " heading but the ones it writes, WRITTEN_SECTIONS) are kept at
+its end. It also times the same frames as BMP beside PNG (decoding alone differs).
 
 Model: training/models/Texture_3_color.onnx when present, else an untrained
 MobileNetV2 exported by training/export.py (same graph, same cost).
@@ -141,6 +142,35 @@ def c_side(model, frames, rounds, threads, clock, camera_file):
     return json.loads(out.stdout)
 
 
+def bmp_copies(frames, work):
+    """Each frame again as an uncompressed BMP (the same pixels, checked), for the
+    decode-format comparison: a camera program can hand poseinfer either."""
+    d = work / "frames-bmp"
+    d.mkdir(parents=True, exist_ok=True)
+    out = []
+    for f in frames:
+        b = d / (Path(f).stem + ".bmp")
+        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        if not b.exists() or not np.array_equal(cv2.imread(str(b), cv2.IMREAD_UNCHANGED), img):
+            tmp = b.with_name(b.stem + ".part.bmp")
+            if not cv2.imwrite(str(tmp), img):
+                raise SystemExit(f"infer_bench: could not write {tmp}")
+            os.replace(tmp, b)  # never a half-written copy under the final name
+        out.append(b)
+    return out
+
+
+def format_side(model, frames, rounds, threads, camera_file, work):
+    """The whole frame from PNG and from BMP of the same pixels, alternating frame by
+    frame in one infer_bench run (so the machine's load hits both alike)."""
+    pairs = [p for f, b in zip(frames, bmp_copies(frames, work)) for p in (f, b)]
+    d = c_side(model, pairs, rounds, threads, "cpu", camera_file)
+    if d["refused"]:
+        raise SystemExit(f"infer_bench: frames refused in the format run: {d['refused']}")
+    return ({k: v[0::2] for k, v in d.items() if k != "refused"},
+            {k: v[1::2] for k, v in d.items() if k != "refused"})
+
+
 def python_side(model, frames, rounds, threads, camera, refused):
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
@@ -230,15 +260,19 @@ def preprocess_state():
         return "training/preprocess.py (git unavailable)"
 
 
+# The "## " sections this script writes itself; any other is kept from the old report.
+WRITTEN_SECTIONS = ("## Reading", "## Frame format (the same pixels as PNG and as BMP)")
+
+
 def kept_sections(out):
-    """The sections of the old report this script does not write ("## " headings other than
-    "## Reading"), verbatim, so that rewriting the report keeps them."""
+    """The sections of the old report this script does not write (WRITTEN_SECTIONS),
+    verbatim, so that rewriting the report keeps them."""
     if not out.exists():
         return []
     kept, keep = [], False
     for line in out.read_text().splitlines():
         if line.startswith("## "):
-            keep = line.strip() != "## Reading"
+            keep = line.strip() not in WRITTEN_SECTIONS
         elif line.startswith("# "):
             keep = False
         if keep:
@@ -290,6 +324,9 @@ def main(args):
     py_cpu, py_wall = python_side(model, frames, args.rounds, args.threads, camera, refused)
     cli_wall = cli_side(model, frames, args.rounds, args.threads, camera_file, refused)
     idle = idle_cpu(model, args.idle_seconds, work)
+    timed_frames = [f for f in frames if str(f) not in refused]
+    fmt_png, fmt_bmp = format_side(model, timed_frames, max(1, args.rounds // 2), args.threads,
+                                   camera_file, work)
     timed = len(frames) - len(refused)
     if timed == 0:
         raise SystemExit(f"infer_bench: every frame refused: {refused}")
@@ -416,6 +453,20 @@ def main(args):
         "above); the CPU columns are the ones to compare.",
         "",
         "The daemon under many clients: [daemon.md](daemon.md).",
+        "",
+        "## Frame format (the same pixels as PNG and as BMP)",
+        "",
+        f"The timed frames once more, each as PNG and as uncompressed BMP (written by OpenCV, the pixels "
+        f"checked equal), alternating in one run of {max(1, args.rounds // 2)} rounds (CPU p50, ms). The "
+        "answers are the same; only decoding differs. A camera program that writes BMP, or hands over raw "
+        "pixels (`pi_infer_bgr`, `--camera`), skips PNG's inflate.",
+        "",
+        "| input | decode | whole frame |",
+        "| --- | ---: | ---: |",
+        f"| PNG | {pct(fmt_png['full_decode'], 50):.2f} | {pct(fmt_png['full'], 50):.2f} |",
+        f"| BMP | {pct(fmt_bmp['full_decode'], 50):.2f} | {pct(fmt_bmp['full'], 50):.2f} |",
+        f"| ratio BMP / PNG | {pct(fmt_bmp['full_decode'], 50) / pct(fmt_png['full_decode'], 50):.2f} | "
+        f"{pct(fmt_bmp['full'], 50) / pct(fmt_png['full'], 50):.2f} |",
         "",
     ]
     out = Path(args.out)
