@@ -270,6 +270,22 @@ def photometric(x, g, strength=1.0):
     return x.clamp(0, 1)
 
 
+# ITU-R BT.601 luma weights of R, G, B: what OpenCV's BGR2GRAY (and most mono
+# camera programs' colour-to-gray conversion) computes, so a gray training crop
+# looks like a mono camera's frame after preprocess.py widens it to three equal channels
+GRAY_WEIGHTS = (0.299, 0.587, 0.114)
+
+
+def gray(x, g, p):
+    """With probability p per sample, the crop as a mono camera sees it: its luma in all
+    three channels. x float RGB [N, 3, S, S] in [0, 1]."""
+    n = x.shape[0]
+    w = torch.tensor(GRAY_WEIGHTS, dtype=x.dtype, device=x.device).view(1, 3, 1, 1)
+    y = (x * w).sum(1, keepdim=True).expand_as(x)
+    pick = (torch.rand(n, generator=g) < p).view(-1, 1, 1, 1).to(x.device)
+    return torch.where(pick, y, x)
+
+
 def geometric(x, g, shift=0.04, scale=0.04):
     """Small random crop jitter (translation, scale), as an imperfect sphere detection
     would give; no in-plane rotation (that would change the Z angle)."""
@@ -287,12 +303,15 @@ def geometric(x, g, shift=0.04, scale=0.04):
 
 def prepare_batch(images_u8, params, augment=None, g=None):
     """uint8 batch -> normalised float32 network input, optionally augmented.
-    augment: None or a dict {'photometric': strength (0 = off), 'geometric': bool}."""
-    if not augment or not (augment.get("photometric") or augment.get("geometric")):
+    augment: None or a dict {'photometric': strength (0 = off), 'geometric': bool,
+    'gray': probability of a mono-camera crop (0 = off)}."""
+    if not augment or not (augment.get("photometric") or augment.get("geometric") or augment.get("gray")):
         return normalise(images_u8, params)
     x = images_u8.to(torch.float32) / 255.0
     if augment.get("geometric"):
         x = geometric(x, g)
     if augment.get("photometric"):
         x = photometric(x, g, augment["photometric"])
+    if augment.get("gray"):
+        x = gray(x, g, augment["gray"])  # after the light: a mono sensor sees the lit scene
     return normalise(x, params)

@@ -71,6 +71,9 @@ def add_train_arguments(t):
     t.add_argument("--photometric", type=float, default=0.0,
                    help="photometric augmentation strength (0 = off, 1 = light/contrast/gamma/blur/noise)")
     t.add_argument("--geometric", action="store_true", help="small crop-jitter augmentation (shift/scale)")
+    t.add_argument("--gray", type=float, default=0.0,
+                   help="probability of training a crop as a mono camera sees it (its luma in all three "
+                        "channels; 0 = off)")
     t.add_argument("--size", type=int, default=None, help="network input size (default: preprocessing's 128)")
     t.add_argument("--preprocess", default=None, help="JSON overrides of the sphere-crop-v1 parameters")
     t.add_argument("--seed", type=int, default=0, help="random seed")

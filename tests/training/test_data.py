@@ -121,3 +121,23 @@ def test_augmentation_shapes_and_range():
     x = prepare_batch(imgs, p, {"photometric": 1.0, "geometric": True}, g)
     assert x.shape == (4, 3, 32, 32) and torch.isfinite(x).all()
     assert not torch.allclose(x, prepare_batch(imgs, p))
+
+
+def test_gray_augmentation_is_what_a_mono_camera_gives():
+    """--gray: a crop made gray in training is what preprocess.py makes of a mono camera's
+    frame (OpenCV's BGR2GRAY, widened to three equal channels), to within rounding."""
+    import cv2
+    import numpy as np
+    from training.data import gray
+    rng = np.random.default_rng(5)
+    bgr = rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    mono = cv2.cvtColor(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), cv2.COLOR_GRAY2BGR)
+    rgb = torch.tensor(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)).permute(2, 0, 1)[None].float() / 255
+    g = torch.Generator().manual_seed(0)
+    assert torch.equal(gray(rgb, g, 0.0), rgb)
+    got = gray(rgb, g, 1.0)[0].permute(1, 2, 0).numpy() * 255
+    assert np.abs(got - mono.astype(np.float32)).max() <= 0.5 + 1e-4
+    x = torch.rand(64, 3, 4, 4, generator=g)
+    some = gray(x, g, 0.5)
+    made_gray = [bool(torch.equal(s[0], s[1]) and torch.equal(s[1], s[2])) for s in some]
+    assert 16 < sum(made_gray) < 48  # about half, each sample drawn on its own
