@@ -740,52 +740,62 @@ def _grow(img, dirs, fit, p):
     return best
 
 
-def _outermost(img, dirs, fit, p):
-    """A weakly supported sphere (support below (1 + min_support) / 2) refitted through the
-    outermost edges near it: on an arc where the limb and the backdrop have nearly the same
-    colour, the rays find only a texture band or the limb's shading 1.5-2.5 px inside the rim,
-    and the fit through the candidates nearest it leans towards them; the rim is the sphere's
-    outermost edge. The later passes' rays from its centre; on each, the outermost edge
-    candidate from 1.5 inlier_px inside the circle to 2 inlier_px outside (farther out, a post
-    or the backdrop's clutter); one robust fit (as every pass) through these. Returns (cx, cy,
-    r, the fit's support), the fit unchanged when the refit fails."""
+def _outermost(rays, dirs, fit, p):
+    """The sphere refitted through the outermost edges near it: on an arc where the limb and the
+    backdrop have nearly the same colour, the rays find only a texture band or the limb's shading
+    1.5-2.5 px inside the rim, and the fit through the candidates nearest it leans towards them;
+    the rim is the sphere's outermost edge. rays: _ray_scores of the support's rays from its
+    centre (within +-support_flank_px, no rays cast again); on each, the outermost edge candidate
+    (at least ray_edge_min) from 1.5 inlier_px inside the circle to 2 inlier_px outside (farther
+    out, a post or the backdrop's clutter); one robust fit (as every pass) through these. Returns
+    (cx, cy, r), the circle unchanged when the refit fails."""
     cx, cy, r = fit[0], fit[1], fit[2]
-    win = p["fine_window_px"] + p["fine_window_frac"] * r
+    rho, score, bad = rays
+    peak, pos = _peaks(rho, score, p["ray_edge_min"])
     lo, hi = r - 1.5 * p["inlier_px"], r + 2.0 * p["inlier_px"]
     cands = []
-    for c in _ray_edges(img, dirs, cx, cy, r, win, p):
-        sel = [x for x in (c or ()) if lo <= x <= hi]
+    for k in range(len(dirs)):
+        sel = [] if bad[k] else [x for x in pos[k][peak[k]].tolist() if lo <= x <= hi]
         cands.append([sel[-1]] if sel else None)
     f = _fit_rays(cands, dirs, cx, cy, cx, cy, r, p)
     if f is None or not f[2] > 1.0:
-        return fit
-    return f[0], f[1], f[2], fit[3]
+        return cx, cy, r
+    return f[0], f[1], f[2]
 
 
-def _rim(img, dirs, fit, p):
-    """The found circle's radius moved to the rim, from its steepest colour step: where the limb
-    darkens towards the rim (shading, under blur and anti-aliasing), the largest step along a
-    ray lies up to a pixel inside the outline, while the step's outer flank stays anchored to
-    it. On each of the support's rays (within +-support_flank_px of the circle), the step peak
-    nearest the circle (within inlier_px, at least ray_edge_min, first on ties) gives its outer
-    half-maximum (the first place outwards where the step falls to half the peak sample's);
-    less the frame's edge half-width (the middle one of those half-maxima's distances from
-    their peaks), that is the rim on the ray. The radius moves by the median of the rims'
-    offsets; the centre stays (a centre fitted through the rims moved some of the training
-    renderer's frames past 0.5 px). Fewer than 8 such rays: the circle unchanged. The C++
-    computes it with every support (the same rays). Returns (cx, cy, r)."""
-    cx, cy, r = fit[0], fit[1], fit[2]
-    rho, score, bad = _ray_scores(img, dirs, cx, cy, r, p["support_flank_px"])
+def _rim(rays, dirs, fit, new, p):
+    """The refitted circle `new`'s radius moved to the rim, from its steepest colour step: where
+    the limb darkens towards the rim (shading, under blur and anti-aliasing), the largest step
+    along a ray lies up to a pixel inside the outline, while the step's outer flank stays
+    anchored to it. rays: _ray_scores of the support's rays from the centre of `fit` (the circle
+    before the refit; the same rays as _outermost's). On each, the step peak nearest the new
+    circle (within inlier_px of where the ray crosses it, at least ray_edge_min, first on ties)
+    gives its outer half-maximum (the first place outwards where the step falls to half the peak
+    sample's); less the frame's edge half-width (the middle one of those half-maxima's distances
+    from their peaks), that is the rim on the ray. The radius moves by the median of the rims'
+    distances from the new circle; the centre stays (a centre fitted through the rims moved some
+    of the training renderer's frames past 0.5 px). Fewer than 8 such rays: the new circle
+    unchanged. Returns (cx, cy, r)."""
+    cx, cy = fit[0], fit[1]
+    nx, ny, nr = new
+    rho, score, bad = rays
     peak, pos = _peaks(rho, score, p["ray_edge_min"])
     n = score.shape[1]
+    dx, dy = nx - cx, ny - cy
     outer, width = [None] * len(dirs), []
     for k in range(len(dirs)):
         if bad[k]:
             continue
+        # where the ray crosses the new circle
+        du = dx * dirs[k, 0] + dy * dirs[k, 1]
+        q = du * du - (dx * dx + dy * dy) + nr * nr
+        if not q >= 0.0:
+            continue
+        t = du + math.sqrt(q)
         best, be = -1, 0.0
         for i in range(1, n - 1):
             if peak[k, i - 1]:
-                e = abs(pos[k, i - 1] - r)
+                e = abs(pos[k, i - 1] - t)
                 if e <= p["inlier_px"] and (best < 0 or e < be):
                     best, be = i, e
         if best < 0:
@@ -801,9 +811,15 @@ def _rim(img, dirs, fit, p):
         outer[k] = o
         width.append(o - pos[k, best - 1])
     if len(width) < 8:
-        return cx, cy, r
+        return nx, ny, nr
     hw = sorted(width)[(len(width) - 1) // 2]
-    return cx, cy, r + _median([o - hw - r for o in outer if o is not None])
+    off = []
+    for k in range(len(dirs)):
+        if outer[k] is not None:
+            ex = cx + (outer[k] - hw) * dirs[k, 0] - nx
+            ey = cy + (outer[k] - hw) * dirs[k, 1] - ny
+            off.append(math.sqrt(ex * ex + ey * ey) - nr)
+    return nx, ny, nr + _median(off)
 
 
 def _support(img, dirs, cx, cy, r, p):
@@ -889,9 +905,9 @@ def _find_sphere_v2(frame, p, camera=None):
         if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]):
             raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
                            f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
-    if a[3] < decisive:
-        a = _outermost(frame, dirs, a, p)
-    return _rim(frame, dirs, a, p)
+    # the sphere's circle from its support's rays (the C++ keeps them from computing the support)
+    rays = _ray_scores(frame, dirs, a[0], a[1], a[2], p["support_flank_px"])
+    return _rim(rays, dirs, a, _outermost(rays, dirs, a, p), p)
 
 
 # ---- the public steps -----------------------------------------------------------------------

@@ -53,7 +53,7 @@ struct Cand {
 
 struct Found {
     double cx, cy, r, support;
-    double rim; // the radius moved to the rim (rim_radius), from the support's rays
+    size_t slot; // its support's rays: Rays bank[slot] (find_sphere)
 };
 
 // Python's math.floor(x) for the values here (finite, well inside long).
@@ -930,7 +930,7 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
 {
     const int K = (int)dirs.size() / 2;
     double cx = *pcx - ox, cy = *pcy - oy, r = *pr;
-    std::vector<double> xs, ys, res, ares, wts;
+    thread_local std::vector<double> xs, ys, res, ares, wts;
     xs.reserve((size_t)K);
     ys.reserve((size_t)K);
     res.reserve((size_t)K);
@@ -1152,56 +1152,49 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     return true;
 }
 
-// The outer half-maximum of a ray's step peak at score i (preprocess.py
-// _rim): going outwards, the first place where the step falls to half the
-// peak sample's, linear between samples; false when it does not within the
+// The colour steps of a circle's support rays (preprocess.py _ray_scores
+// from its centre, +-support_flank_px), kept for the sphere's last step
+// (final_circle) so that no ray is cast again: ray k's n scores at score[k n],
+// ok[k] false for a ray that leaves the frame.
+struct Rays {
+    long n = 0;
+    std::vector<double> rho, score;
+    std::vector<char> ok;
+};
+
+// The outer half-maximum of step peak i of scores sc (preprocess.py _rim):
+// going outwards, the first place where the step falls to half the peak
+// sample's, linear between samples; false when it does not within the
 // window.
-bool outer_half_max(const RayScores &rs, long i, double *o)
+bool outer_half_max(const double *sc, const double *rho, long n, long i, double *o)
 {
-    const double *sc = rs.score.data();
-    const long n = rs.n;
     const double hm = sc[i] / 2.0;
     long j = i;
     while (j + 1 < n && sc[j + 1] > hm) j++;
     if (j + 1 >= n) return false;
-    *o = rs.rho[(size_t)j + 1] + (sc[j] - hm) / (sc[j] - sc[j + 1]) * 0.5;
+    *o = rho[j + 1] + (sc[j] - hm) / (sc[j] - sc[j + 1]) * 0.5;
     return true;
-}
-
-// The circle's radius moved to the rim (preprocess.py _rim) from the rays'
-// outer half-maxima o and their distances from the peaks w: o less the
-// ((m - 1) // 2)-th smallest w, their median's offset from r added to r.
-// Fewer than 8 rays: r. Reorders both.
-double rim_radius(std::vector<double> &outer, std::vector<double> &width, double r)
-{
-    const size_t m = width.size();
-    if (m < 8) return r;
-    std::nth_element(width.begin(), width.begin() + (long)((m - 1) / 2), width.end());
-    const double hw = width[(m - 1) / 2];
-    for (double &o : outer) o = o - hw - r;
-    return r + median_of(outer.data(), outer.size());
 }
 
 // Support of a circle (preprocess.py _support): the fraction of all rays
 // with a step peak within inlier_px of r of at least support_edge_min and
 // support_ratio times the ray's median step 2 inlier_px to support_flank_px
-// off r. The same rays give *rim, the radius moved to the rim (preprocess.py
-// _rim): on each, the peak nearest the circle within inlier_px of at least
-// ray_edge_min (first on ties) and its outer half-maximum.
+// off r. Its rays' steps go to *keep.
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
-               const pp_params *p, double *rim)
+               const pp_params *p, Rays *keep)
 {
     const int K = (int)dirs.size() / 2;
     thread_local RayScores rs;
     thread_local std::vector<double> fl;
     thread_local std::vector<long> fi;
-    thread_local std::vector<double> near, outer, width;
-    outer.clear();
-    width.clear();
-    *rim = r;
+    thread_local std::vector<double> near;
     const double ratio = p->support_ratio;
     rs.setup(r, p->support_flank_px);
     const long n = rs.n;
+    keep->n = n;
+    keep->rho.assign(rs.rho.begin(), rs.rho.end());
+    keep->score.resize((size_t)K * (size_t)n);
+    keep->ok.assign((size_t)K, 0);
     // the flank's scores (the same places on every ray); none: no ray has
     // support, whichever stay inside the frame
     fi.clear();
@@ -1211,29 +1204,18 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     int cnt = 0;
     for (int k = 0; k < K; k++) {
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
+        keep->ok[(size_t)k] = 1;
+        std::memcpy(&keep->score[(size_t)k * (size_t)n], rs.score.data(),
+                    (size_t)n * sizeof(double));
+        if (!flank) continue;
         // the peaks near the circle first: the median only for a ray with one
         near.clear();
         const long np = rs.peaks(p->support_edge_min);
-        long best = -1;
-        double be = 0.0, bpos = 0.0;
         for (long m = 0; m < np; m++) {
             const long i = rs.pk[(size_t)m];
-            const double pos = rs.peak_pos(i), e = std::fabs(pos - r);
-            if (e <= p->inlier_px) {
-                near.push_back(rs.score[(size_t)i]);
-                if (rs.score[(size_t)i] >= p->ray_edge_min && (best < 0 || e < be)) {
-                    best = i;
-                    be = e;
-                    bpos = pos;
-                }
-            }
+            if (std::fabs(rs.peak_pos(i) - r) <= p->inlier_px) near.push_back(rs.score[(size_t)i]);
         }
-        double o;
-        if (best >= 0 && outer_half_max(rs, best, &o)) {
-            outer.push_back(o);
-            width.push_back(o - bpos);
-        }
-        if (!flank || near.empty()) continue;
+        if (near.empty()) continue;
         double cmax = near[0];
         for (const double c : near) cmax = std::max(cmax, c);
         fl.resize(fi.size());
@@ -1255,13 +1237,12 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
         const double t = ratio * median_of(fl.data(), fl.size());
         if (cmax >= t) cnt++;
     }
-    *rim = rim_radius(outer, width, r);
     return (double)cnt / K;
 }
 
 // Refine a coarse circle (preprocess.py _fine). False: none.
 bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s, const pp_params *p,
-          Found *out)
+          Found *out, Rays *rays)
 {
     double cx = c.cx, cy = c.cy, r = c.r;
     thread_local RayEdges re;
@@ -1288,7 +1269,7 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
     out->cx = cx;
     out->cy = cy;
     out->r = r;
-    out->support = support(f, dirs, cx, cy, r, p, &out->rim);
+    out->support = support(f, dirs, cx, cy, r, p, rays);
     return true;
 }
 
@@ -1296,7 +1277,9 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
 // _grow): from the same centre with the radius fine_window_px and 2
 // fine_window_px larger, fine_passes - 1 passes each; the best supported of
 // the fit and these (the fit on ties) is kept. True when one of these is.
-bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit)
+// bank[fit->slot] holds the kept one's support rays, bank[spare] is free.
+bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
+          std::vector<Rays> &bank, size_t spare)
 {
     bool moved = false;
     thread_local RayEdges re;
@@ -1317,42 +1300,70 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
             r = sr;
         }
         if (!ok) continue;
-        double rim;
-        const double sup = support(f, dirs, cx, cy, r, p, &rim);
+        const double sup = support(f, dirs, cx, cy, r, p, &bank[spare]);
         if (sup > fit->support) {
-            *fit = {cx, cy, r, sup, rim};
+            std::swap(bank[fit->slot], bank[spare]);
+            *fit = {cx, cy, r, sup, fit->slot};
             moved = true;
         }
     }
     return moved;
 }
 
-// A weakly supported sphere refitted through the outermost edge near it
-// (preprocess.py _outermost): where an arc of the rim has no colour step,
-// the rays there find a band inside it, and the fit through the candidates
-// nearest it leans towards them. The later passes' rays; on each, the
-// outermost candidate from 1.5 inlier_px inside the circle to 2 inlier_px
-// outside; one robust fit through these, and the rim radius of the new
-// circle (support's). False (fit unchanged) when the refit fails.
-bool outermost(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit)
+// The sphere's last step (preprocess.py _outermost, then _rim), from its
+// support's rays (from its centre, +-support_flank_px; none cast again):
+// refitted through the outermost edges near it (where an arc of the rim has
+// no colour step, the rays there find a band inside it, and the fit through
+// the candidates nearest it leans towards them): on each ray the outermost
+// candidate from 1.5 inlier_px inside the circle to 2 inlier_px outside, one
+// robust fit through these (the circle as it is when that fails); then that
+// circle's radius moved to the rim: on each ray the peak nearest where the
+// ray crosses it, its outer half-maximum less the edge half-width, the median
+// of their distances from the circle added to its radius.
+void final_circle(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+                  const Rays &rays, double *ocx, double *ocy, double *orad)
 {
     const int K = (int)dirs.size() / 2;
-    thread_local RayEdges re, one;
-    const double r = fit->r;
-    ray_edges(f, dirs, fit->cx, fit->cy, r, p->fine_window_px + p->fine_window_frac * r,
-              p->ray_edge_min, 0.0, re);
-    const double lo = r - 1.5 * p->inlier_px, hi = r + 2.0 * p->inlier_px;
+    const long n = rays.n;
+    thread_local RayEdges one;
+    thread_local std::vector<uint8_t> pf;
+    thread_local std::vector<int32_t> pi;   // the peaks' score indexes, ray by ray
+    thread_local std::vector<double> pp, w; // their sub-pixel places; the half-widths
+    thread_local std::vector<int32_t> poff;
+    thread_local std::vector<double> outer;
+    const double r = a.r, lo = r - 1.5 * p->inlier_px, hi = r + 2.0 * p->inlier_px;
+    const double *rho = rays.rho.data();
+    // the peaks of at least ray_edge_min on every ray, their sub-pixel places;
+    // on each ray the outermost from lo to hi
+    pf.resize((size_t)n);
+    pi.resize((size_t)K * (size_t)n);
+    pp.resize((size_t)K * (size_t)n);
+    poff.assign((size_t)K + 1, 0);
     one.ok.assign((size_t)K, 0);
     one.off.assign((size_t)K + 1, 0);
     one.cand.clear();
+    int32_t np = 0;
     for (int k = 0; k < K; k++) {
+        poff[(size_t)k] = np;
         one.off[(size_t)k] = (int)one.cand.size();
-        if (!re.ok[(size_t)k]) continue;
+        if (!rays.ok[(size_t)k]) continue;
         one.ok[(size_t)k] = 1;
+        const double *sc = &rays.score[(size_t)k * (size_t)n];
+        peak_flags(sc, n, p->ray_edge_min, pf.data());
+        const int32_t first = np;
+        for (long i = 1; i < n - 1; i++) {
+            pi[(size_t)np] = (int32_t)i;
+            np += pf[(size_t)i];
+        }
         bool any = false;
         double sel = 0.0;
-        for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++) {
-            const double x = re.cand[(size_t)i];
+        for (int32_t m = first; m < np; m++) {
+            const long i = pi[(size_t)m];
+            const double c = sc[i], l = sc[i - 1], u = sc[i + 1];
+            const double den = l - 2.0 * c + u;
+            const double o = den < 0.0 ? 0.5 * (l - u) / den : 0.0;
+            const double x = rho[i + 1] + o * 0.5;
+            pp[(size_t)m] = x;
             if (lo <= x && x <= hi) {
                 sel = x;
                 any = true;
@@ -1360,14 +1371,57 @@ bool outermost(const Frame &f, const std::vector<double> &dirs, const pp_params 
         }
         if (any) one.cand.push_back(sel);
     }
+    poff[(size_t)K] = np;
     one.off[(size_t)K] = (int)one.cand.size();
-    double cx = fit->cx, cy = fit->cy, rr = r;
-    if (!fit_rays(one, dirs, fit->cx, fit->cy, &cx, &cy, &rr, p) || !(rr > 1.0)) return false;
-    fit->cx = cx;
-    fit->cy = cy;
-    fit->r = rr;
-    support(f, dirs, cx, cy, rr, p, &fit->rim);
-    return true;
+    double nx = a.cx, ny = a.cy, nr = r;
+    if (!fit_rays(one, dirs, a.cx, a.cy, &nx, &ny, &nr, p) || !(nr > 1.0)) {
+        nx = a.cx;
+        ny = a.cy;
+        nr = r;
+    }
+    // the rim, on each ray near where it crosses the new circle (outer: NaN
+    // for a ray without)
+    const double dx = nx - a.cx, dy = ny - a.cy;
+    outer.assign((size_t)K, std::nan(""));
+    w.clear();
+    for (int k = 0; k < K; k++) {
+        if (!rays.ok[(size_t)k] || poff[(size_t)k] == poff[(size_t)k + 1]) continue;
+        const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+        const double du = dx * ux + dy * uy;
+        const double q = du * du - (dx * dx + dy * dy) + nr * nr;
+        if (!(q >= 0.0)) continue;
+        const double t = du + std::sqrt(q);
+        long best = -1;
+        double be = 0.0, bpos = 0.0;
+        for (int32_t m = poff[(size_t)k]; m < poff[(size_t)k + 1]; m++) {
+            const double e = std::fabs(pp[(size_t)m] - t);
+            if (e <= p->inlier_px && (best < 0 || e < be)) {
+                best = pi[(size_t)m];
+                be = e;
+                bpos = pp[(size_t)m];
+            }
+        }
+        double o;
+        if (best < 0 || !outer_half_max(&rays.score[(size_t)k * (size_t)n], rho, n, best, &o))
+            continue;
+        outer[(size_t)k] = o;
+        w.push_back(o - bpos);
+    }
+    *ocx = nx;
+    *ocy = ny;
+    *orad = nr;
+    const size_t m = w.size();
+    if (m < 8) return;
+    std::nth_element(w.begin(), w.begin() + (long)((m - 1) / 2), w.end());
+    const double hw = w[(m - 1) / 2];
+    w.clear(); // now the rims' distances from the circle, in ray order
+    for (int k = 0; k < K; k++)
+        if (!std::isnan(outer[(size_t)k])) {
+            const double ex = a.cx + (outer[(size_t)k] - hw) * dirs[2 * (size_t)k] - nx;
+            const double ey = a.cy + (outer[(size_t)k] - hw) * dirs[2 * (size_t)k + 1] - ny;
+            w.push_back(std::sqrt(ex * ex + ey * ey) - nr);
+        }
+    *orad = nr + median_of(w.data(), w.size());
 }
 
 double rim_outside(double cx, double cy, double r, int h, int w)
@@ -1464,6 +1518,9 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
     const Frame f = {bgr, stride, w, h};
     std::vector<Found> all, fits;
+    // the fits' support rays, kept between frames; one more for grow's tries
+    thread_local std::vector<Rays> bank;
+    if (bank.size() < cands.size() + 1) bank.resize(cands.size() + 1);
     const double decisive = (1.0 + p->min_support) / 2.0;
     for (const Cand &c : cands) {
         // a peak whose centre lies inside a decisively supported fit is that circle again or
@@ -1476,7 +1533,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
                       (c.cx - a.cx) * (c.cx - a.cx) + (c.cy - a.cy) * (c.cy - a.cy) < a.r * a.r);
         if (inside) continue;
         Found fo;
-        if (fine(f, dirs, c, s, p, &fo)) all.push_back(fo);
+        fo.slot = all.size();
+        if (fine(f, dirs, c, s, p, &fo, &bank[fo.slot])) all.push_back(fo);
     }
     // the best supported fit (first on ties), when weakly supported, tried from larger circles
     if (!all.empty()) {
@@ -1484,7 +1542,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         for (size_t i = 1; i < all.size(); i++)
             if (all[i].support > all[ib].support) ib = i;
         // again from the circle it moved to, while that is better supported and still weak
-        while (all[ib].support < decisive && grow(f, dirs, p, &all[ib])) {
+        while (all[ib].support < decisive && grow(f, dirs, p, &all[ib], bank, all.size())) {
         }
     }
     for (const Found &fo : all)
@@ -1522,12 +1580,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
             return -1;
         }
     }
-    // a weakly supported sphere: refitted through the outermost edges near it
-    Found fin = a;
-    if (fin.support < decisive) outermost(f, dirs, p, &fin);
-    *ocx = fin.cx;
-    *ocy = fin.cy;
-    *orad = fin.rim;
+    // refitted through the outermost edges near it, its radius moved to the rim
+    final_circle(dirs, p, a, bank[a.slot], ocx, ocy, orad);
     return 0;
 }
 
