@@ -92,15 +92,9 @@ enum {
     A_NX,
     A_NY,
     A_NZ, /* the sphere's normal (world) */
-    A_RX,
-    A_RY, /* the ray's x, y at depth 1 */
-    A_INV,
-    A_T, /* 1 / |ray|, the ray's length to the sphere */
+    A_T,  /* the ray's length to the sphere */
     A_FX,
     A_FY, /* bilinear weights */
-    A_DUT0,
-    A_DUT2,
-    A_DVT1, /* d (u, v) texel / d b */
     A_V0,
     A_V1,
     A_V2, /* texture values */
@@ -134,6 +128,7 @@ struct rf_work {
     double c0x, c0y;      /* the level's first circle centre (A_X, A_Y's origin) */
     double sst;           /* the sampled pixels' variance sum (pixel_set) */
     double so[3], soo[3]; /* the sampled pixels' sums of obs and obs^2 per channel (exact) */
+    float gp[6];          /* the last value pass's geometry_pass parameters (GEO_*) */
 };
 
 static const int rf_iters[RF_LEVELS] = RF_ITERS_INIT;
@@ -535,13 +530,18 @@ static inline vf vatan2(vf y, vf x)
 
 /* Where each sample's ray meets the sphere (training/refine.py normals), the
  * body direction b = R^T n, and where b reads the texture (sample's first
- * half): texel offset, bilinear weights, d (u, v) / d b. dcx, dcy: the
- * circle's centre minus the arrays' origin; dist: camera to centre (unit
- * sphere); tw, th: the texture level's size, tr its texels a row of tiles. */
-RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float dcx, float dcy,
-                                    float inv_f, float dist, int tw, int th, int tr)
+ * half): texel offset, bilinear weights. gp (GEO_*): the circle's centre
+ * minus the arrays' origin, 1 / f, camera to centre (unit sphere), texels a
+ * radian along u and along v; tw, th: the texture level's size, tr its
+ * texels a row of tiles. The ray and d (u, v) / d b, which only the Jacobian
+ * reads, are not kept: jac_sums_n computes them again for its few samples
+ * (writing them for every sample cost more). */
+enum { GEO_DCX, GEO_DCY, GEO_INVF, GEO_DIST, GEO_KW, GEO_KH };
+RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const float gp[6], int tw,
+                                    int th, int tr)
 {
-    const float dist2 = dist * dist, kw = (float)(tw / (2 * M_PI)), kh = (float)(th / M_PI);
+    const float dcx = gp[GEO_DCX], dcy = gp[GEO_DCY], inv_f = gp[GEO_INVF], dist = gp[GEO_DIST];
+    const float dist2 = dist * dist, kw = gp[GEO_KW], kh = gp[GEO_KH];
     const float u0 = (float)(tw / 2.0 - 0.5), v0 = (float)(th / 2.0 - 0.5);
     for (long k = 0; k < n; k += RF_VL) {
         vf x = (vload(w->a[A_X] + k) - dcx) * inv_f, y = -(vload(w->a[A_Y] + k) - dcy) * inv_f;
@@ -573,17 +573,10 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], float 
         i0 += 1;
         j0 += 1;
         *(vi *)(w->off + k) = RF_TILE_OFF(i0, j0, tr);
-        vf krho = kw * (irho * irho);
-        *(vf *)(w->a[A_DUT0] + k) = bz * krho;
-        *(vf *)(w->a[A_DUT2] + k) = -bx * krho;
-        *(vf *)(w->a[A_DVT1] + k) = -kh * irho;
+        *(vf *)(w->a[A_T] + k) = t;
         *(vf *)(w->a[A_NX] + k) = n0;
         *(vf *)(w->a[A_NY] + k) = n1;
         *(vf *)(w->a[A_NZ] + k) = n2;
-        *(vf *)(w->a[A_RX] + k) = x;
-        *(vf *)(w->a[A_RY] + k) = y;
-        *(vf *)(w->a[A_INV] + k) = inv;
-        *(vf *)(w->a[A_T] + k) = t;
     }
 }
 #ifdef RF_X86_GCC
@@ -917,8 +910,13 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     double f = focal_of(r, fixed_f), tan_a = r / f, dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
     float Rf[9];
     for (int i = 0; i < 9; i++) Rf[i] = (float)R[i / 3][i % 3];
-    geometry_pass(w, npad, Rf, (float)(cx - w->c0x), (float)(cy - w->c0y), (float)(1.0 / f),
-                  (float)dist, tw, th, tr);
+    w->gp[GEO_DCX] = (float)(cx - w->c0x);
+    w->gp[GEO_DCY] = (float)(cy - w->c0y);
+    w->gp[GEO_INVF] = (float)(1.0 / f);
+    w->gp[GEO_DIST] = (float)dist;
+    w->gp[GEO_KW] = (float)(tw / (2 * M_PI));
+    w->gp[GEO_KH] = (float)(th / M_PI);
+    geometry_pass(w, npad, Rf, w->gp, tw, th, tr);
 #ifdef RF_X86_GCC
     if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw"))
         gather_pass_avx512(w, npad, tex, tr, t->scale[lev]);
@@ -979,14 +977,17 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
  * derivatives of the rendering J (channel x 6: rotation, centre, radius), and
  * over the samples J^T J (21: the upper triangle), per channel J^T A (6 x 5)
  * and J^T e (6, summed over the channels). k: (inv_f, cr, dDr) the ray's
- * derivatives (see jacobian), R the rotation, a the photometric coefficients. */
+ * derivatives (see jacobian), gp the value pass's geometry (geometry_pass),
+ * R the rotation, a the photometric coefficients. */
 #define RF_JSUMS (21 + 90 + 6)
 static inline __attribute__((always_inline)) void jac_sums_n(float *const *q, long npad,
                                                              const float R[9], const float kd[3],
-                                                             const float a[3][5],
+                                                             const float gp[6], const float a[3][5],
                                                              double out[RF_JSUMS], int nch)
 {
     const float inv_f = kd[0], cr = kd[1], dDr = kd[2];
+    const float dcx = gp[GEO_DCX], dcy = gp[GEO_DCY], g_invf = gp[GEO_INVF];
+    const float kw = gp[GEO_KW], kh = gp[GEO_KH];
     /* float lanes over RF_JBLOCK samples each, then double: H is nearly
      * singular along rotations that mimic a shift of the circle, so its sums
      * need more than float's seven digits */
@@ -996,9 +997,18 @@ static inline __attribute__((always_inline)) void jac_sums_n(float *const *q, lo
     for (long k = 0; k < npad; k += RF_VL) {
         if (k % RF_JBLOCK == 0)
             for (int i = 0; i < RF_JSUMS; i++) acc[i] = (vf){0};
-        vf x = vload(q[A_RX] + k), y = vload(q[A_RY] + k);
-        vf inv = vload(q[A_INV] + k), t = vload(q[A_T] + k);
+        /* the ray and d (u, v) / d b of the value pass, computed again for
+         * these samples alone with geometry_pass's operations (the same bits;
+         * keep the two alike). t is kept: written out again, GCC fuses one of
+         * its multiply-adds otherwise and its bits move. */
+        vf x = (vload(q[A_X] + k) - dcx) * g_invf, y = -(vload(q[A_Y] + k) - dcy) * g_invf;
+        vf p2 = x * x + y * y, inv = vrsqrt(p2 + 1.0f), t = vload(q[A_T] + k);
         vf n0 = vload(q[A_NX] + k), n1 = vload(q[A_NY] + k), n2 = vload(q[A_NZ] + k);
+        vf bx = R[0] * n0 + R[3] * n1 + R[6] * n2;
+        vf bz = R[2] * n0 + R[5] * n1 + R[8] * n2;
+        vf rho2 = bx * bx + bz * bz;
+        rho2 = vsel(vneg(1e-12f - rho2), rho2, (vf){0} + 1e-12f);
+        vf irho = vrsqrt(rho2), krho = kw * (irho * irho);
         vf e0 = x * inv, e1 = y * inv, e2 = -inv; /* the ray's direction d */
         /* n.d = -cos of the angle of incidence: about -0.4 at the samples'
          * rim; where a step has moved the circle so far that a ray only
@@ -1037,7 +1047,7 @@ static inline __attribute__((always_inline)) void jac_sums_n(float *const *q, lo
         /* the world-frame gradient of channel c is du_c P + dv_c Q: P, Q are
          * R times the texel axes' d (u, v) / d b; the rendering's derivatives
          * are linear in it (rotation: g x n, circle: g . dn) */
-        vf d0 = vload(q[A_DUT0] + k), d2 = vload(q[A_DUT2] + k), d1 = vload(q[A_DVT1] + k);
+        vf d0 = bz * krho, d2 = -bx * krho, d1 = -kh * irho;
         vf P[3], Q[3], JP[6], JQ[6];
         for (int i = 0; i < 3; i++) {
             P[i] = R[3 * i] * d0 + R[3 * i + 2] * d2;
@@ -1093,16 +1103,16 @@ static inline __attribute__((always_inline)) void jac_sums_n(float *const *q, lo
 }
 
 RF_CLONES static void jac_sums3(float *const *q, long npad, const float R[9], const float kd[3],
-                                const float a[3][5], double out[RF_JSUMS])
+                                const float gp[6], const float a[3][5], double out[RF_JSUMS])
 {
-    jac_sums_n(q, npad, R, kd, a, out, 3);
+    jac_sums_n(q, npad, R, kd, gp, a, out, 3);
 }
 
 /* a gray frame: channel 0 alone (the sums of the others are the same) */
 RF_CLONES static void jac_sums1(float *const *q, long npad, const float R[9], const float kd[3],
-                                const float a[3][5], double out[RF_JSUMS])
+                                const float gp[6], const float a[3][5], double out[RF_JSUMS])
 {
-    jac_sums_n(q, npad, R, kd, a, out, 1);
+    jac_sums_n(q, npad, R, kd, gp, a, out, 1);
 }
 
 /* The samples whose rendering has a gradient, copied into w->ja (padded with
@@ -1142,9 +1152,8 @@ __attribute__((target("avx512f"))) static void pick_avx512(float *dst, const flo
 
 static long jac_samples(rf_work *w)
 {
-    static const int keep[] = {A_O0,  A_O1,  A_O2,   A_NX,   A_NY,   A_NZ, A_RX, A_RY,
-                               A_INV, A_T,   A_DUT0, A_DUT2, A_DVT1, A_V0, A_V1, A_V2,
-                               A_DU0, A_DU1, A_DU2,  A_DV0,  A_DV1,  A_DV2};
+    static const int keep[] = {A_O0, A_O1, A_O2, A_NX,  A_NY,  A_NZ,  A_X,   A_Y,   A_T,
+                               A_V0, A_V1, A_V2, A_DU0, A_DU1, A_DU2, A_DV0, A_DV1, A_DV2};
     enum { NK = sizeof keep / sizeof keep[0] };
     long m = active_samples(w, w->idx), mp = (m + RF_LANES - 1) / RF_LANES * RF_LANES;
     int32_t *idx = w->idx;
@@ -1184,14 +1193,14 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
         for (int i = 0; i < 5; i++) a[c][i] = (float)fit->coef[c][i];
     long nj = jac_samples(w);
     if (w->gray) {
-        jac_sums1(w->ja, nj, Rf, kd, a, s);
+        jac_sums1(w->ja, nj, Rf, kd, w->gp, a, s);
         /* the three equal channels: J^T J and J^T e three times channel 0's, J^T A the same for each */
         for (int i = 0; i < 21; i++) s[i] *= 3;
         for (int i = 0; i < 6; i++) s[111 + i] *= 3;
         memcpy(s + 51, s + 21, 30 * sizeof s[0]);
         memcpy(s + 81, s + 21, 30 * sizeof s[0]);
     } else
-        jac_sums3(w->ja, nj, Rf, kd, a, s);
+        jac_sums3(w->ja, nj, Rf, kd, w->gp, a, s);
     double JtA[3][6][5];
     int h = 0;
     for (int i = 0; i < 6; i++)
