@@ -745,22 +745,57 @@ def _outermost(rays, dirs, fit, p):
     backdrop have nearly the same colour, the rays find only a texture band or the limb's shading
     1.5-2.5 px inside the rim, and the fit through the candidates nearest it leans towards them;
     the rim is the sphere's outermost edge. rays: _ray_scores of the support's rays from its
-    centre (within +-support_flank_px, no rays cast again); on each, the outermost edge candidate
-    (at least ray_edge_min) from 1.5 inlier_px inside the circle to 2 inlier_px outside (farther
-    out, a post or the backdrop's clutter); one robust fit (as every pass) through these. Returns
-    (cx, cy, r), the circle unchanged when the refit fails."""
+    centre (within +-support_flank_px, no rays cast again); their edge candidates (at least
+    ray_edge_min). One robust fit (irls_iters rounds, as every pass) through, on each ray, the
+    outermost candidate from 1.5 inlier_px inside the current circle to 2 inlier_px outside
+    (farther out, a post or the backdrop's clutter), taken at the first round and once more
+    after half the rounds, about the circle the fit has reached then (a circle pulled inwards
+    by the bands reaches the rim beyond the first band's reach; taken every round or every
+    other round, it creeps out onto the backdrop's edges). Returns (cx, cy, r), the circle
+    unchanged when the refit fails."""
     cx, cy, r = fit[0], fit[1], fit[2]
     rho, score, bad = rays
     peak, pos = _peaks(rho, score, p["ray_edge_min"])
-    lo, hi = r - 1.5 * p["inlier_px"], r + 2.0 * p["inlier_px"]
-    cands = []
-    for k in range(len(dirs)):
-        sel = [] if bad[k] else [x for x in pos[k][peak[k]].tolist() if lo <= x <= hi]
-        cands.append([sel[-1]] if sel else None)
-    f = _fit_rays(cands, dirs, cx, cy, cx, cy, r, p)
-    if f is None or not f[2] > 1.0:
+    cands = [[] if bad[k] else pos[k][peak[k]].tolist() for k in range(len(dirs))]
+    lo, hi = -1.5 * p["inlier_px"], 2.0 * p["inlier_px"]
+    x, y, nr = 0.0, 0.0, r  # the circle about the rays' origin (cx, cy)
+    xs, ys = [], []
+    for it in range(p["irls_iters"]):
+        res = []
+        if it == 0 or it == p["irls_iters"] // 2:
+            # on each ray the outermost candidate within the band about the current circle
+            xs, ys = [], []
+            for k in range(len(dirs)):
+                ux, uy = dirs[k, 0], dirs[k, 1]
+                sel = None
+                for c in cands[k]:
+                    px, py = c * ux - x, c * uy - y
+                    e = math.sqrt(px * px + py * py) - nr
+                    if lo <= e <= hi:
+                        sel = (c * ux, c * uy, e)
+                if sel is not None:
+                    xs.append(sel[0])
+                    ys.append(sel[1])
+                    res.append(sel[2])
+            if len(xs) < 8:
+                return cx, cy, r
+        else:
+            for px, py in zip(xs, ys):
+                px, py = px - x, py - y
+                res.append(math.sqrt(px * px + py * py) - nr)
+        sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(v) for v in res]))
+        cut = p["tukey_c"] * sigma
+        wts = []
+        for v in res:
+            u = v / cut
+            wts.append((1.0 - u * u) * (1.0 - u * u) if -1.0 < u < 1.0 else 0.0)
+        f = _kasa(xs, ys, wts)
+        if f is None:
+            return cx, cy, r
+        x, y, nr = f
+    if not nr > 1.0:
         return cx, cy, r
-    return f[0], f[1], f[2]
+    return cx + x, cy + y, nr
 
 
 def _rim(rays, dirs, fit, new, p):

@@ -930,7 +930,7 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
 {
     const int K = (int)dirs.size() / 2;
     double cx = *pcx - ox, cy = *pcy - oy, r = *pr;
-    thread_local std::vector<double> xs, ys, res, ares, wts;
+    std::vector<double> xs, ys, res, ares, wts;
     xs.reserve((size_t)K);
     ys.reserve((size_t)K);
     res.reserve((size_t)K);
@@ -1325,13 +1325,13 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
 {
     const int K = (int)dirs.size() / 2;
     const long n = rays.n;
-    thread_local RayEdges one;
     thread_local std::vector<uint8_t> pf;
     thread_local std::vector<int32_t> pi;   // the peaks' score indexes, ray by ray
     thread_local std::vector<double> pp, w; // their sub-pixel places; the half-widths
     thread_local std::vector<int32_t> poff;
     thread_local std::vector<double> outer;
-    const double r = a.r, lo = r - 1.5 * p->inlier_px, hi = r + 2.0 * p->inlier_px;
+    thread_local std::vector<double> xs, ys, res, ares, wts;
+    const double r = a.r, lo = -1.5 * p->inlier_px, hi = 2.0 * p->inlier_px;
     const double *rho = rays.rho.data();
     // the peaks of at least ray_edge_min on every ray, their sub-pixel places;
     // on each ray the outermost from lo to hi
@@ -1339,15 +1339,10 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
     pi.resize((size_t)K * (size_t)n);
     pp.resize((size_t)K * (size_t)n);
     poff.assign((size_t)K + 1, 0);
-    one.ok.assign((size_t)K, 0);
-    one.off.assign((size_t)K + 1, 0);
-    one.cand.clear();
     int32_t np = 0;
     for (int k = 0; k < K; k++) {
         poff[(size_t)k] = np;
-        one.off[(size_t)k] = (int)one.cand.size();
         if (!rays.ok[(size_t)k]) continue;
-        one.ok[(size_t)k] = 1;
         const double *sc = &rays.score[(size_t)k * (size_t)n];
         peak_flags(sc, n, p->ray_edge_min, pf.data());
         const int32_t first = np;
@@ -1355,26 +1350,74 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
             pi[(size_t)np] = (int32_t)i;
             np += pf[(size_t)i];
         }
-        bool any = false;
-        double sel = 0.0;
         for (int32_t m = first; m < np; m++) {
             const long i = pi[(size_t)m];
             const double c = sc[i], l = sc[i - 1], u = sc[i + 1];
             const double den = l - 2.0 * c + u;
             const double o = den < 0.0 ? 0.5 * (l - u) / den : 0.0;
-            const double x = rho[i + 1] + o * 0.5;
-            pp[(size_t)m] = x;
-            if (lo <= x && x <= hi) {
-                sel = x;
-                any = true;
-            }
+            pp[(size_t)m] = rho[i + 1] + o * 0.5;
         }
-        if (any) one.cand.push_back(sel);
     }
     poff[(size_t)K] = np;
-    one.off[(size_t)K] = (int)one.cand.size();
-    double nx = a.cx, ny = a.cy, nr = r;
-    if (!fit_rays(one, dirs, a.cx, a.cy, &nx, &ny, &nr, p) || !(nr > 1.0)) {
+    // one robust fit (as fit_rays), about the rays' origin, through on each
+    // ray the outermost candidate within lo .. hi of the current circle, taken
+    // at the first round and again after half the rounds
+    double x = 0.0, y = 0.0, nr = r;
+    bool fitted = true;
+    xs.clear();
+    ys.clear();
+    for (int it = 0; it < p->irls_iters && fitted; it++) {
+        res.clear();
+        if (it == 0 || it == p->irls_iters / 2) {
+            xs.clear();
+            ys.clear();
+            for (int k = 0; k < K; k++) {
+                const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+                bool any = false;
+                double sx = 0.0, sy = 0.0, se = 0.0;
+                for (int32_t m = poff[(size_t)k]; m < poff[(size_t)k + 1]; m++) {
+                    const double c = pp[(size_t)m];
+                    const double px = c * ux - x, py = c * uy - y;
+                    const double e = std::sqrt(px * px + py * py) - nr;
+                    if (lo <= e && e <= hi) {
+                        sx = c * ux;
+                        sy = c * uy;
+                        se = e;
+                        any = true;
+                    }
+                }
+                if (!any) continue;
+                xs.push_back(sx);
+                ys.push_back(sy);
+                res.push_back(se);
+            }
+            if (xs.size() < 8) {
+                fitted = false;
+                break;
+            }
+        } else
+            for (size_t i = 0; i < xs.size(); i++) {
+                const double px = xs[i] - x, py = ys[i] - y;
+                res.push_back(std::sqrt(px * px + py * py) - nr);
+            }
+        // the robust scale as in fit_rays
+        const size_t na = res.size();
+        ares.resize(na);
+        for (size_t i = 0; i < na; i++) ares[i] = std::fabs(res[i]);
+        const double smin = p->sigma_min_px;
+        double sigma = smin;
+        if (count_scaled_le(ares.data(), na, 1.4826, smin) < na / 2 + 1)
+            sigma = std::max(smin, 1.4826 * median_of(ares.data(), na));
+        const double cut = p->tukey_c * sigma;
+        wts.resize(na);
+        for (size_t i = 0; i < na; i++) {
+            const double u = res[i] / cut;
+            wts[i] = (-1.0 < u && u < 1.0) ? (1.0 - u * u) * (1.0 - u * u) : 0.0;
+        }
+        fitted = kasa(xs, ys, wts, &x, &y, &nr);
+    }
+    double nx = a.cx + x, ny = a.cy + y;
+    if (!fitted || !(nr > 1.0)) {
         nx = a.cx;
         ny = a.cy;
         nr = r;
