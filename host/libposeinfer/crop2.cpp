@@ -1152,14 +1152,16 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     return true;
 }
 
-// The colour steps of a circle's support rays (preprocess.py _ray_scores
-// from its centre, +-support_flank_px), kept for the sphere's last step
-// (final_circle) so that no ray is cast again: ray k's n scores at score[k n],
-// ok[k] false for a ray that leaves the frame.
+// What the sphere's last step (final_circle) needs of a circle's support
+// rays (preprocess.py _ray_scores from its centre, +-support_flank_px), kept
+// so that no ray is cast again: on each ray its colour step's peaks of at
+// least ray_edge_min, their places and outer half-maxima; ok[k] false for a
+// ray that leaves the frame.
 struct Rays {
-    long n = 0;
-    std::vector<double> rho, score;
     std::vector<char> ok;
+    std::vector<int32_t> off;       // ray k's peaks: off[k] .. off[k + 1]
+    std::vector<double> pos, outer; // their sub-pixel places, outer half-maxima
+    std::vector<char> has;          // whether it has one (outer_half_max)
 };
 
 // The outer half-maximum of step peak i of scores sc (preprocess.py _rim):
@@ -1191,10 +1193,14 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     const double ratio = p->support_ratio;
     rs.setup(r, p->support_flank_px);
     const long n = rs.n;
-    keep->n = n;
-    keep->rho.assign(rs.rho.begin(), rs.rho.end());
-    keep->score.resize((size_t)K * (size_t)n);
     keep->ok.assign((size_t)K, 0);
+    keep->off.assign((size_t)K + 1, 0);
+    keep->pos.clear();
+    keep->outer.clear();
+    keep->has.clear();
+    // the peaks of at least either threshold: those of the higher one are
+    // among them (a peak is at least its threshold and its neighbours)
+    const double thr = std::min(p->support_edge_min, p->ray_edge_min);
     // the flank's scores (the same places on every ray); none: no ray has
     // support, whichever stay inside the frame
     fi.clear();
@@ -1203,19 +1209,24 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     const bool flank = !fi.empty();
     int cnt = 0;
     for (int k = 0; k < K; k++) {
+        keep->off[(size_t)k] = (int32_t)keep->pos.size();
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
         keep->ok[(size_t)k] = 1;
-        std::memcpy(&keep->score[(size_t)k * (size_t)n], rs.score.data(),
-                    (size_t)n * sizeof(double));
-        if (!flank) continue;
         // the peaks near the circle first: the median only for a ray with one
         near.clear();
-        const long np = rs.peaks(p->support_edge_min);
+        const long np = rs.peaks(thr);
         for (long m = 0; m < np; m++) {
             const long i = rs.pk[(size_t)m];
-            if (std::fabs(rs.peak_pos(i) - r) <= p->inlier_px) near.push_back(rs.score[(size_t)i]);
+            const double c = rs.score[(size_t)i], pos = rs.peak_pos(i);
+            if (c >= p->ray_edge_min) {
+                double o = 0.0;
+                keep->has.push_back(outer_half_max(rs.score.data(), rs.rho.data(), n, i, &o));
+                keep->pos.push_back(pos);
+                keep->outer.push_back(o);
+            }
+            if (c >= p->support_edge_min && std::fabs(pos - r) <= p->inlier_px) near.push_back(c);
         }
-        if (near.empty()) continue;
+        if (!flank || near.empty()) continue;
         double cmax = near[0];
         for (const double c : near) cmax = std::max(cmax, c);
         fl.resize(fi.size());
@@ -1237,6 +1248,7 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
         const double t = ratio * median_of(fl.data(), fl.size());
         if (cmax >= t) cnt++;
     }
+    keep->off[(size_t)K] = (int32_t)keep->pos.size();
     return (double)cnt / K;
 }
 
@@ -1324,41 +1336,10 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
                   const Rays &rays, double *ocx, double *ocy, double *orad)
 {
     const int K = (int)dirs.size() / 2;
-    const long n = rays.n;
-    thread_local std::vector<uint8_t> pf;
-    thread_local std::vector<int32_t> pi;   // the peaks' score indexes, ray by ray
-    thread_local std::vector<double> pp, w; // their sub-pixel places; the half-widths
-    thread_local std::vector<int32_t> poff;
-    thread_local std::vector<double> outer;
-    thread_local std::vector<double> xs, ys, res, ares, wts;
+    thread_local std::vector<double> w, outer, xs, ys, res, ares, wts;
     const double r = a.r, lo = -1.5 * p->inlier_px, hi = 2.0 * p->inlier_px;
-    const double *rho = rays.rho.data();
-    // the peaks of at least ray_edge_min on every ray, their sub-pixel places;
-    // on each ray the outermost from lo to hi
-    pf.resize((size_t)n);
-    pi.resize((size_t)K * (size_t)n);
-    pp.resize((size_t)K * (size_t)n);
-    poff.assign((size_t)K + 1, 0);
-    int32_t np = 0;
-    for (int k = 0; k < K; k++) {
-        poff[(size_t)k] = np;
-        if (!rays.ok[(size_t)k]) continue;
-        const double *sc = &rays.score[(size_t)k * (size_t)n];
-        peak_flags(sc, n, p->ray_edge_min, pf.data());
-        const int32_t first = np;
-        for (long i = 1; i < n - 1; i++) {
-            pi[(size_t)np] = (int32_t)i;
-            np += pf[(size_t)i];
-        }
-        for (int32_t m = first; m < np; m++) {
-            const long i = pi[(size_t)m];
-            const double c = sc[i], l = sc[i - 1], u = sc[i + 1];
-            const double den = l - 2.0 * c + u;
-            const double o = den < 0.0 ? 0.5 * (l - u) / den : 0.0;
-            pp[(size_t)m] = rho[i + 1] + o * 0.5;
-        }
-    }
-    poff[(size_t)K] = np;
+    const int32_t *poff = rays.off.data();
+    const double *pp = rays.pos.data();
     // one robust fit (as fit_rays), about the rays' origin, through on each
     // ray the outermost candidate within lo .. hi of the current circle, taken
     // at the first round and again after half the rounds
@@ -1375,8 +1356,8 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
                 const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
                 bool any = false;
                 double sx = 0.0, sy = 0.0, se = 0.0;
-                for (int32_t m = poff[(size_t)k]; m < poff[(size_t)k + 1]; m++) {
-                    const double c = pp[(size_t)m];
+                for (int32_t m = poff[k]; m < poff[k + 1]; m++) {
+                    const double c = pp[m];
                     const double px = c * ux - x, py = c * uy - y;
                     const double e = std::sqrt(px * px + py * py) - nr;
                     if (lo <= e && e <= hi) {
@@ -1428,27 +1409,24 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
     outer.assign((size_t)K, std::nan(""));
     w.clear();
     for (int k = 0; k < K; k++) {
-        if (!rays.ok[(size_t)k] || poff[(size_t)k] == poff[(size_t)k + 1]) continue;
+        if (poff[k] == poff[k + 1]) continue;
         const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
         const double du = dx * ux + dy * uy;
         const double q = du * du - (dx * dx + dy * dy) + nr * nr;
         if (!(q >= 0.0)) continue;
         const double t = du + std::sqrt(q);
-        long best = -1;
-        double be = 0.0, bpos = 0.0;
-        for (int32_t m = poff[(size_t)k]; m < poff[(size_t)k + 1]; m++) {
-            const double e = std::fabs(pp[(size_t)m] - t);
+        int32_t best = -1;
+        double be = 0.0;
+        for (int32_t m = poff[k]; m < poff[k + 1]; m++) {
+            const double e = std::fabs(pp[m] - t);
             if (e <= p->inlier_px && (best < 0 || e < be)) {
-                best = pi[(size_t)m];
+                best = m;
                 be = e;
-                bpos = pp[(size_t)m];
             }
         }
-        double o;
-        if (best < 0 || !outer_half_max(&rays.score[(size_t)k * (size_t)n], rho, n, best, &o))
-            continue;
-        outer[(size_t)k] = o;
-        w.push_back(o - bpos);
+        if (best < 0 || !rays.has[(size_t)best]) continue;
+        outer[(size_t)k] = rays.outer[(size_t)best];
+        w.push_back(rays.outer[(size_t)best] - pp[best]);
     }
     *ocx = nx;
     *ocy = ny;
