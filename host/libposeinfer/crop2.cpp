@@ -1155,10 +1155,9 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
 // What the sphere's last step (final_circle) needs of a circle's support
 // rays (preprocess.py _ray_scores from its centre, +-support_flank_px), kept
 // so that no ray is cast again: on each ray its colour step's peaks of at
-// least ray_edge_min, their places and outer half-maxima; ok[k] false for a
-// ray that leaves the frame.
+// least ray_edge_min, their places and outer half-maxima (none on a ray that
+// leaves the frame).
 struct Rays {
-    std::vector<char> ok;
     std::vector<int32_t> off;       // ray k's peaks: off[k] .. off[k + 1]
     std::vector<double> pos, outer; // their sub-pixel places, outer half-maxima
     std::vector<char> has;          // whether it has one (outer_half_max)
@@ -1193,7 +1192,6 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     const double ratio = p->support_ratio;
     rs.setup(r, p->support_flank_px);
     const long n = rs.n;
-    keep->ok.assign((size_t)K, 0);
     keep->off.assign((size_t)K + 1, 0);
     keep->pos.clear();
     keep->outer.clear();
@@ -1211,7 +1209,6 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     for (int k = 0; k < K; k++) {
         keep->off[(size_t)k] = (int32_t)keep->pos.size();
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
-        keep->ok[(size_t)k] = 1;
         // the peaks near the circle first: the median only for a ray with one
         near.clear();
         const long np = rs.peaks(thr);
