@@ -470,26 +470,42 @@ KERN2_CLONES void box_max16(uint16_t *acc, int nb, int hs, int ws, uint16_t *pai
     box_max_t<uint16_t>(acc, nb, hs, ws, pair, h3, vmax, bmax);
 }
 
-// v32[i] = v16[i]. A loop of its own so that it vectorises.
-KERN2_CLONES void widen(const uint16_t *v16, size_t n, int32_t *v32)
-{
-    for (size_t i = 0; i < n; i++) v32[i] = v16[i];
-}
-
 // The largest of v[0 .. n), n >= 1. A loop of its own so that it vectorises.
-KERN2_CLONES int32_t max_of(const int32_t *v, size_t n)
+template <class T> inline __attribute__((always_inline)) T max_of_t(const T *v, size_t n)
 {
-    int32_t m = v[0];
+    T m = v[0];
     for (size_t i = 1; i < n; i++) m = v[i] > m ? v[i] : m;
     return m;
 }
 
+KERN2_CLONES int32_t max_of(const int32_t *v, size_t n)
+{
+    return max_of_t(v, n);
+}
+
+// The same in 16 bits (the box sums of a 16-bit accumulator, read as they
+// are: twice the lanes, and no copy to 32 bits).
+KERN2_CLONES uint16_t max_of16(const uint16_t *v, size_t n)
+{
+    return max_of_t(v, n);
+}
+
 // Whether any of v[0 .. n) equals x. A loop of its own so that it vectorises.
+template <class T> inline __attribute__((always_inline)) bool any_eq_t(const T *v, size_t n, T x)
+{
+    T hit = 0;
+    for (size_t i = 0; i < n; i++) hit |= (T)(v[i] == x);
+    return hit != 0;
+}
+
 KERN2_CLONES bool any_eq(const int32_t *v, size_t n, int32_t x)
 {
-    int32_t hit = 0;
-    for (size_t i = 0; i < n; i++) hit |= (int32_t)(v[i] == x);
-    return hit != 0;
+    return any_eq_t(v, n, x);
+}
+
+KERN2_CLONES bool any_eq16(const uint16_t *v, size_t n, uint16_t x)
+{
+    return any_eq_t(v, n, x);
 }
 
 // The first index of x in v[0 .. n) (x is there): blocks looked at as a
@@ -503,8 +519,60 @@ size_t first_of(const int32_t *v, size_t n, int32_t x)
     return i;
 }
 
+size_t first_of(const uint16_t *v, size_t n, uint16_t x)
+{
+    const size_t blk = 256;
+    size_t i = 0;
+    while (i + blk < n && !any_eq16(v + i, blk, x)) i += blk;
+    while (v[i] != x) i++;
+    return i;
+}
+
+inline int32_t max_of(const uint16_t *v, size_t n)
+{
+    return max_of16(v, n);
+}
+
 // Candidate circles, strongest first; *s_out the reduction.
 double rim_outside(double cx, double cy, double r, int h, int w);
+
+// The candidates from the box sums' per-cell largest (vmax) and its bin
+// (bmax), planes of hs x ws in 16 or 32 bits: the strongest cell first, its
+// radius from the votes, then the cells near it cleared. vmax is cleared
+// there.
+template <class T>
+void peaks(T *vmax, const T *bmax, const Edges &e, const std::vector<long> &start, int nb, int hs,
+           int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out)
+{
+    const size_t plane = (size_t)hs * ws;
+    const double sup = p->cand_gap * (double)lo;
+    long best = -1;
+    // a peak whose circle would be refused as cut by the frame edge is refined but does not use
+    // up one of the `candidates` places (training/preprocess.py says why); 4 x candidates at most
+    for (int k = 0, taken = 0; k < 4 * p->candidates && taken < p->candidates; k++) {
+        const int32_t v = max_of(vmax, plane);
+        const size_t ci = first_of(vmax, plane, (T)v); // the first cell holding it
+        if (v <= 0 || (best >= 0 && (double)v < p->cand_frac * (double)best)) break;
+        if (best < 0) best = v;
+        const long Yc = (long)(ci / ws), Xc = (long)(ci % ws);
+        const int b = bmax[ci];
+        const long r_s =
+            radius_vote(e, Xc, Yc, start[(size_t)b], start[(size_t)std::min(b + 2, nb)] - 1);
+        bool cut = false;
+        if (r_s >= 0) {
+            const double off = (s - 1) / 2.0;
+            out.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
+            cut = rim_outside(out.back().cx, out.back().cy, out.back().r, h, w) > p->max_cut;
+        }
+        if (!cut) taken++;
+        const long R = ifloor(sup) + 1;
+        for (long Y = std::max(0L, Yc - R); Y <= std::min((long)hs - 1, Yc + R); Y++)
+            for (long X = std::max(0L, Xc - R); X <= std::min((long)ws - 1, Xc + R); X++) {
+                const long d2 = (X - Xc) * (X - Xc) + (Y - Yc) * (Y - Yc);
+                if ((double)d2 <= sup * sup) vmax[(size_t)Y * ws + X] = (T)0;
+            }
+    }
+}
 
 std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
                          double rmin, double rmax, int *s_out)
@@ -586,10 +654,6 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     // taken once of each bin plus the next.
     std::vector<int32_t> &pair = scratch.box, &hsum = scratch.hsum, &vmax = scratch.vmax,
                          &bmax = scratch.bmax;
-    pair.resize((size_t)ws);
-    hsum.resize(3 * (size_t)nb * ws);
-    vmax.resize(plane);
-    bmax.resize(plane);
     if (narrow) {
         std::vector<uint16_t> &pair16 = scratch.box16, &hsum16 = scratch.hsum16,
                               &vmax16 = scratch.vmax16, &bmax16 = scratch.bmax16;
@@ -599,43 +663,23 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         bmax16.resize(plane);
         box_max16(acc16.data(), nb, hs, ws, pair16.data(), hsum16.data(), vmax16.data(),
                   bmax16.data());
-        widen(vmax16.data(), plane, vmax.data());
-        widen(bmax16.data(), plane, bmax.data());
         // the slots of the votes outside
         std::fill(acc16.begin() + (long)((size_t)nb * plane),
                   acc16.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
     } else {
+        pair.resize((size_t)ws);
+        hsum.resize(3 * (size_t)nb * ws);
+        vmax.resize(plane);
+        bmax.resize(plane);
         box_max(acc.data(), nb, hs, ws, pair.data(), hsum.data(), vmax.data(), bmax.data());
         std::fill(acc.begin() + (long)((size_t)nb * plane),
                   acc.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
     }
-    const double sup = p->cand_gap * (double)lo;
-    long best = -1;
-    // a peak whose circle would be refused as cut by the frame edge is refined but does not use
-    // up one of the `candidates` places (training/preprocess.py says why); 4 x candidates at most
-    for (int k = 0, taken = 0; k < 4 * p->candidates && taken < p->candidates; k++) {
-        const int32_t v = max_of(vmax.data(), plane);
-        const size_t ci = first_of(vmax.data(), plane, v); // the first cell holding it
-        if (v <= 0 || (best >= 0 && (double)v < p->cand_frac * (double)best)) break;
-        if (best < 0) best = v;
-        const long Yc = (long)(ci / ws), Xc = (long)(ci % ws);
-        const int b = bmax[ci];
-        const long r_s =
-            radius_vote(e, Xc, Yc, start[(size_t)b], start[(size_t)std::min(b + 2, nb)] - 1);
-        bool cut = false;
-        if (r_s >= 0) {
-            const double off = (s - 1) / 2.0;
-            out.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
-            cut = rim_outside(out.back().cx, out.back().cy, out.back().r, h, w) > p->max_cut;
-        }
-        if (!cut) taken++;
-        const long R = ifloor(sup) + 1;
-        for (long Y = std::max(0L, Yc - R); Y <= std::min((long)hs - 1, Yc + R); Y++)
-            for (long X = std::max(0L, Xc - R); X <= std::min((long)ws - 1, Xc + R); X++) {
-                const long d2 = (X - Xc) * (X - Xc) + (Y - Yc) * (Y - Yc);
-                if ((double)d2 <= sup * sup) vmax[(size_t)Y * ws + X] = 0;
-            }
-    }
+    if (narrow)
+        peaks(scratch.vmax16.data(), scratch.bmax16.data(), e, start, nb, hs, ws, s, h, w, lo, p,
+              out);
+    else
+        peaks(vmax.data(), bmax.data(), e, start, nb, hs, ws, s, h, w, lo, p, out);
     return out;
 }
 
