@@ -100,12 +100,17 @@ KERN2_CLONES void block_sums(const uint8_t *p, size_t stride, int s, size_t nbyt
     }
 }
 
-// q[i] = (v[i] + half) / n as (v[i] + half) * mul >> sh (mul, sh checked exact
-// for every possible sum), for a row of reduced pixels.
-KERN2_CLONES void block_means(const uint16_t *v, size_t n, uint32_t half, uint32_t mul, int sh,
-                              uint8_t *q)
+// q[c n + X] = (v[3 X + c] + half) / n as (v[3 X + c] + half) * mul >> sh
+// (mul, sh checked exact for every possible sum), for a row of n reduced
+// pixels: their means by channel (planar).
+KERN2_CLONES void block_means(const uint16_t *__restrict v, size_t n, uint32_t half, uint32_t mul,
+                              int sh, uint8_t *__restrict q)
 {
-    for (size_t i = 0; i < n; i++) q[i] = (uint8_t)((((uint32_t)v[i] + half) * mul) >> sh);
+    for (size_t i = 0; i < n; i++) {
+        q[i] = (uint8_t)((((uint32_t)v[3 * i] + half) * mul) >> sh);
+        q[n + i] = (uint8_t)((((uint32_t)v[3 * i + 1] + half) * mul) >> sh);
+        q[2 * n + i] = (uint8_t)((((uint32_t)v[3 * i + 2] + half) * mul) >> sh);
+    }
 }
 
 // A multiplier and shift with (v * mul) >> sh == v / n for every v in 0 ..
@@ -126,7 +131,9 @@ bool exact_divider(uint32_t n, uint32_t vmax, uint32_t *mul, int *sh)
     return false;
 }
 
-// Block means of s x s blocks, rounded half up; the remainder dropped.
+// Block means of s x s blocks, rounded half up; the remainder dropped. Row
+// Y of the reduced image holds its ws blue means, then the green, then the
+// red (planar per row: the gradient's loops read each channel contiguously).
 void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<uint8_t> &red,
             int *hs, int *ws)
 {
@@ -159,7 +166,7 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
                 std::memcpy(&t, hs16 + (size_t)X * 3 * s, 8);
                 std::memcpy(pk + (size_t)X * 3, &t, 8);
             }
-            block_means(pick.data(), nout, half, div_mul, div_sh, &red[(size_t)Y * nout]);
+            block_means(pick.data(), *ws, half, div_mul, div_sh, &red[(size_t)Y * nout]);
         }
         return;
     }
@@ -180,9 +187,9 @@ void reduce(const uint8_t *bgr, size_t stride, int w, int h, int s, std::vector<
                 g += q[1];
                 r += q[2];
             }
-            o[3 * X] = (uint8_t)((b + (int32_t)half) / (int32_t)n); // non-negative: / floors
-            o[3 * X + 1] = (uint8_t)((g + (int32_t)half) / (int32_t)n);
-            o[3 * X + 2] = (uint8_t)((r + (int32_t)half) / (int32_t)n);
+            o[X] = (uint8_t)((b + (int32_t)half) / (int32_t)n); // non-negative: / floors
+            o[*ws + X] = (uint8_t)((g + (int32_t)half) / (int32_t)n);
+            o[2 * *ws + X] = (uint8_t)((r + (int32_t)half) / (int32_t)n);
         }
     }
 }
@@ -203,27 +210,27 @@ struct Edges {
 // magnitude^2 (first on ties) and its gx, gy. Planar loops so that they
 // vectorise; magnitudes^2 fit int32 (|g| <= 4 * 255 * 2).
 KERN2_CLONES void gradient_row(const uint8_t *r0, const uint8_t *r1, const uint8_t *r2, int gw,
-                               int32_t *V, int32_t *D, int32_t *m, int32_t *ox, int32_t *oy)
+                               int32_t *__restrict V, int32_t *__restrict D, int32_t *__restrict m,
+                               int32_t *__restrict ox, int32_t *__restrict oy)
 {
-    const int nb = (gw + 2) * 3;
+    const int ws = gw + 2, nb = ws * 3;
     for (int k = 0; k < nb; k++) {
         V[k] = r0[k] + 2 * r1[k] + r2[k];
         D[k] = r2[k] - r0[k];
     }
+    // the rows are planar (channel c at [c ws, (c + 1) ws))
+    const int32_t *Vb = V, *Vg = V + ws, *Vr = V + 2 * ws;
+    const int32_t *Db = D, *Dg = D + ws, *Dr = D + 2 * ws;
     for (int j = 0; j < gw; j++) {
-        int32_t bm = -1, bx = 0, by = 0;
-        for (int c = 0; c < 3; c++) {
-            const int k = 3 * j + c;
-            const int32_t x = V[k + 6] - V[k], y = D[k] + 2 * D[k + 3] + D[k + 6];
-            const int32_t m2 = x * x + y * y;
-            const bool gt = m2 > bm;
-            bm = gt ? m2 : bm;
-            bx = gt ? x : bx;
-            by = gt ? y : by;
-        }
-        m[j] = bm;
-        ox[j] = bx;
-        oy[j] = by;
+        const int32_t xb = Vb[j + 2] - Vb[j], yb = Db[j] + 2 * Db[j + 1] + Db[j + 2];
+        const int32_t xg = Vg[j + 2] - Vg[j], yg = Dg[j] + 2 * Dg[j + 1] + Dg[j + 2];
+        const int32_t xr = Vr[j + 2] - Vr[j], yr = Dr[j] + 2 * Dr[j + 1] + Dr[j + 2];
+        const int32_t mb = xb * xb + yb * yb, mg = xg * xg + yg * yg, mr = xr * xr + yr * yr;
+        // the first channel of the largest: the later one only when strictly larger
+        const int32_t bm = mg > mb ? mg : mb, bx = mg > mb ? xg : xb, by = mg > mb ? yg : yb;
+        m[j] = mr > bm ? mr : bm;
+        ox[j] = mr > bm ? xr : bx;
+        oy[j] = mr > bm ? yr : by;
     }
 }
 
