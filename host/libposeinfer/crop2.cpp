@@ -234,14 +234,15 @@ KERN2_CLONES void gradient_row(const uint8_t *r0, const uint8_t *r1, const uint8
     }
 }
 
-// One row of edges: keep[j] = 1 where the magnitude^2 m (mc[j], mc the
-// row in the zero-bordered plane of row length P) is at least tmin and
-// not below either neighbour across the edge (direction in four classes,
-// integer tests), else 0. A loop of its own so that it vectorises.
-KERN2_CLONES void nms_row(const int32_t *mc, long P, const int32_t *gx, const int32_t *gy, int gw,
-                          int32_t tmin, int32_t *keep)
+// One row of edges: keep[j] = 1 where the magnitude^2 m (mc[j]; up and dn
+// the rows above and below, each row with a zero before and after) is at
+// least tmin and not below either neighbour across the edge (direction in
+// four classes, integer tests), else 0. A loop of its own so that it
+// vectorises.
+KERN2_CLONES void nms_row(const int32_t *up, const int32_t *mc, const int32_t *dn,
+                          const int32_t *gx, const int32_t *gy, int gw, int32_t tmin,
+                          int32_t *__restrict keep)
 {
-    const int32_t *up = mc - P, *dn = mc + P;
     for (int j = 0; j < gw; j++) {
         const int32_t m = mc[j], gxv = gx[j], gyv = gy[j];
         const int32_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
@@ -259,28 +260,29 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
 {
     const int gh = hs - 2, gw = ws - 2;
     const size_t P = (size_t)gw + 2;
-    std::vector<int32_t> &M = scratch.M; // padded magnitude^2: a border of zeros
-    if (M.size() < (size_t)(gh + 2) * P) M.resize((size_t)(gh + 2) * P);
-    std::fill(M.begin(), M.begin() + (long)P, 0);
-    std::fill(M.begin() + (long)((gh + 1) * P), M.begin() + (long)((gh + 2) * P), 0);
-    for (int i = 1; i <= gh; i++) {
-        M[(size_t)i * P] = 0;
-        M[(size_t)i * P + P - 1] = 0;
-    }
-    std::vector<int32_t> &GX = scratch.GX, &GY = scratch.GY, &V = scratch.V, &D = scratch.D;
+    const double emin2 = edge_min * edge_min;
+    // m >= emin2 (a double) as an integer test: m >= ceil(emin2); an emin2
+    // no magnitude reaches (or NaN): no edge
+    if (!(emin2 <= 2147483647.0)) return;
+    const int32_t tmin = emin2 <= -2147483648.0 ? INT32_MIN : (int32_t)-std::floor(-emin2);
+    // Row by row: the gradient of row i, then the edges of row i - 1 (its
+    // rows above and below are known by then), so that the rows in use stay
+    // in the cache. The magnitudes^2 of the last three rows (a ring, each
+    // row with a zero before and after; a row of zeros above the first and
+    // below the last), gx and gy of the last two.
+    std::vector<int32_t> &M = scratch.M, &GX = scratch.GX, &GY = scratch.GY, &V = scratch.V,
+                         &D = scratch.D;
+    M.assign(4 * P, 0);
+    GX.resize(2 * (size_t)gw);
+    GY.resize(2 * (size_t)gw);
     const size_t nb = (size_t)ws * 3;
-    GX.resize((size_t)gh * gw);
-    GY.resize((size_t)gh * gw);
     V.resize(nb);
     D.resize(nb);
-    for (int i = 0; i < gh; i++) {
-        const uint8_t *r0 = &red[(size_t)i * nb];
-        gradient_row(r0, r0 + nb, r0 + 2 * nb, gw, V.data(), D.data(), &M[(size_t)(i + 1) * P + 1],
-                     &GX[(size_t)i * gw], &GY[(size_t)i * gw]);
-    }
-    const double emin2 = edge_min * edge_min;
-    // branch-free: the neighbours' offset by conditional moves, each edge
-    // written at the end and kept by advancing the count
+    const int32_t *zero = &M[3 * P];
+    // the padded row t (1 .. gh: gradient row t - 1; 0 and gh + 1: zeros)
+    auto mrow = [&](int t) -> int32_t * {
+        return t == 0 || t == gh + 1 ? const_cast<int32_t *>(zero) : &M[(size_t)(t % 3) * P];
+    };
     const size_t cap = (size_t)gh * gw + 1;
     if (e.x.size() < cap) {
         e.x.resize(cap);
@@ -288,18 +290,16 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
         e.gx.resize(cap);
         e.gy.resize(cap);
     }
-    size_t ne = 0;
-    // m >= emin2 (a double) as an integer test: m >= ceil(emin2); an emin2
-    // no magnitude reaches (or NaN): no edge
-    if (!(emin2 <= 2147483647.0)) return;
-    const int32_t tmin = emin2 <= -2147483648.0 ? INT32_MIN : (int32_t)-std::floor(-emin2);
     std::vector<int32_t> &keep = scratch.keep;
     keep.resize((size_t)gw + 4);
     std::fill(keep.begin() + gw, keep.end(), 0);
-    for (int i = 0; i < gh; i++) {
-        const int32_t *gxr = &GX[(size_t)i * gw], *gyr = &GY[(size_t)i * gw];
-        nms_row(&M[(size_t)(i + 1) * P + 1], (long)P, gxr, gyr, gw, tmin, keep.data());
-        // the kept ones, four flags at a time
+    size_t ne = 0;
+    // the edges of gradient row i (padded row i + 1)
+    auto row_edges = [&](int i) {
+        const int32_t *gxr = &GX[(size_t)(i % 2) * gw], *gyr = &GY[(size_t)(i % 2) * gw];
+        nms_row(mrow(i) + 1, mrow(i + 1) + 1, mrow(i + 2) + 1, gxr, gyr, gw, tmin, keep.data());
+        // branch-free: each edge written at the end and kept by advancing
+        // the count; the kept ones, four flags at a time
         for (int j = 0; j < gw; j += 4) {
             if (!(keep[(size_t)j] | keep[(size_t)j + 1] | keep[(size_t)j + 2] |
                   keep[(size_t)j + 3]))
@@ -312,7 +312,14 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
                 ne += keep[(size_t)jj];
             }
         }
+    };
+    for (int i = 0; i < gh; i++) {
+        const uint8_t *r0 = &red[(size_t)i * nb];
+        gradient_row(r0, r0 + nb, r0 + 2 * nb, gw, V.data(), D.data(), mrow(i + 1) + 1,
+                     &GX[(size_t)(i % 2) * gw], &GY[(size_t)(i % 2) * gw]);
+        if (i >= 1) row_edges(i - 1);
     }
+    if (gh >= 1) row_edges(gh - 1);
     e.n = ne;
 }
 
