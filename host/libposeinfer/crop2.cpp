@@ -705,41 +705,58 @@ struct Frame {
     int w, h;
 };
 
-// Bilinear sample of 3 channels at (X, Y); false when a corner is outside.
-inline bool sample(const Frame &f, double X, double Y, double v[3])
+// Whether the bilinear sample at (X, Y) has all four corners inside the
+// frame: X, Y in [0, w - 1) x [0, h - 1) (truncation is the floor there).
+inline bool inside(const Frame &f, double X, double Y)
 {
-    // inside means X, Y in [0, w - 1) x [0, h - 1): truncation is the floor there
-    if (!(X >= 0.0 && Y >= 0.0 && X < f.w - 1 && Y < f.h - 1)) return false;
-    const double x0 = (double)(long)X, y0 = (double)(long)Y;
-    const double fx = X - x0, fy = Y - y0;
-    const uint8_t *a = f.p + (size_t)y0 * f.stride + 3 * (size_t)x0, *b = a + f.stride;
-    for (int c = 0; c < 3; c++) {
-        const double p00 = a[c], p01 = a[3 + c], p10 = b[c], p11 = b[3 + c];
-        const double top = p00 + fx * (p01 - p00);
-        const double bot = p10 + fx * (p11 - p10);
-        v[c] = top + fy * (bot - top);
-    }
-    return true;
+    return X >= 0.0 && Y >= 0.0 && X < f.w - 1 && Y < f.h - 1;
 }
 
-static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "bilinear_words reads bytes as words");
+static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "ray_gather reads bytes as words");
 
-// Bilinear interpolation, preprocess.py _sample's operations and order, from
-// 32-bit words (little-endian): the channel's byte at bit sh of the words of
-// p00 and p10, at bit sh + 8 of those of p01 and p11 (read from two bytes
-// on, see RayScores::ray).
-KERN2_CLONES void bilinear_words(const uint32_t *w00, const uint32_t *w01, const uint32_t *w10,
-                                 const uint32_t *w11, int sh, const double *fx, const double *fy,
-                                 size_t n, double *v)
+// Per sample of a ray from (cx, cy) along (ux, uy) at distances rho[0 ..
+// ns), every sample inside the frame: the fractions of X and Y, and the
+// corners as two 64-bit words (little-endian): wa from the top-left
+// corner's first byte (p00's channel c at bit 8 c, p01's at 24 + 8 c), wb
+// from two bytes before the bottom-left one (p10's at 16 + 8 c, p11's at 40
+// + 8 c). Both stay within the frame's rows: wa ends at most 2 bytes past
+// row y0's pixels (in row y0 + 1, which exists), wb starts in row y0 + 1 or
+// at most 2 bytes before it.
+KERN2_CLONES void ray_gather(const uint8_t *fp, int64_t st, double cx, double cy, double ux,
+                             double uy, const double *rho, size_t ns, double *__restrict fx,
+                             double *__restrict fy, uint64_t *__restrict wa,
+                             uint64_t *__restrict wb)
 {
-    for (size_t j = 0; j < n; j++) {
-        const double p00 = (int32_t)((w00[j] >> sh) & 255u),
-                     p01 = (int32_t)((w01[j] >> (sh + 8)) & 255u),
-                     p10 = (int32_t)((w10[j] >> sh) & 255u),
-                     p11 = (int32_t)((w11[j] >> (sh + 8)) & 255u);
-        const double top = p00 + fx[j] * (p01 - p00);
-        const double bot = p10 + fx[j] * (p11 - p10);
-        v[j] = top + fy[j] * (bot - top);
+    for (size_t j = 0; j < ns; j++) {
+        const double X = cx + rho[j] * ux, Y = cy + rho[j] * uy;
+        const int32_t x0 = (int32_t)X, y0 = (int32_t)Y;
+        fx[j] = X - (double)x0;
+        fy[j] = Y - (double)y0;
+        const uint8_t *a = fp + ((int64_t)y0 * st + 3 * (int64_t)x0);
+        std::memcpy(&wa[j], a, 8);
+        std::memcpy(&wb[j], a + st - 2, 8);
+    }
+}
+
+// Bilinear interpolation of the three channels (preprocess.py _sample's
+// operations and order) from ray_gather's words; v planar (channel c at v[c
+// ns]). p01 - p00 and p11 - p10 are taken in integers: the same values as
+// in doubles (small integers are exact).
+KERN2_CLONES void bilinear3(const uint64_t *__restrict wa, const uint64_t *__restrict wb,
+                            const double *__restrict fx, const double *__restrict fy, size_t ns,
+                            double *__restrict v)
+{
+    for (size_t j = 0; j < ns; j++) {
+        const uint64_t a = wa[j], b = wb[j];
+        for (int c = 0; c < 3; c++) {
+            const int32_t p00 = (int32_t)((a >> (8 * c)) & 255u),
+                          p01 = (int32_t)((a >> (24 + 8 * c)) & 255u),
+                          p10 = (int32_t)((b >> (16 + 8 * c)) & 255u),
+                          p11 = (int32_t)((b >> (40 + 8 * c)) & 255u);
+            const double top = (double)p00 + fx[j] * (double)(p01 - p00);
+            const double bot = (double)p10 + fx[j] * (double)(p11 - p10);
+            v[(size_t)c * ns + j] = top + fy[j] * (bot - top);
+        }
     }
 }
 
@@ -751,20 +768,6 @@ KERN2_CLONES void peak_flags(const double *score, long n, double thr, uint8_t *p
     for (long i = 1; i < n - 1; i++) {
         const double c = score[i];
         pf[i] = (uint8_t)((c >= thr) & (c >= score[i - 1]) & (c > score[i + 1]));
-    }
-}
-
-// Per sample inside the frame: the fractions of X, Y and the byte offset
-// of the top-left corner (truncation is the floor there). A loop of its own
-// so that it vectorises.
-KERN2_CLONES void ray_corners(const double *X, const double *Y, size_t ns, int64_t stride,
-                              double *fx, double *fy, int64_t *off)
-{
-    for (size_t j = 0; j < ns; j++) {
-        const int32_t x0 = (int32_t)X[j], y0 = (int32_t)Y[j];
-        fx[j] = X[j] - (double)x0;
-        fy[j] = Y[j] - (double)y0;
-        off[j] = (int64_t)y0 * stride + 3 * (int64_t)x0;
     }
 }
 
@@ -793,9 +796,8 @@ struct RayEdges {
 // floor(2 win)) / 2.
 struct RayScores {
     long n = 0;
-    std::vector<double> rho, X, Y, FX, FY, v, score;
-    std::vector<uint32_t> W;
-    std::vector<int64_t> O;
+    std::vector<double> rho, FX, FY, v, score;
+    std::vector<uint64_t> WA, WB;
     std::vector<uint8_t> pf;
     std::vector<int32_t> pk;
     void setup(double r, double win)
@@ -804,12 +806,10 @@ struct RayScores {
         n = 2 * m + 1;
         const size_t ns = (size_t)n + 2;
         rho.resize(ns);
-        X.resize(ns);
-        Y.resize(ns);
         FX.resize(ns);
         FY.resize(ns);
-        W.resize(4 * ns);
-        O.resize(ns);
+        WA.resize(ns);
+        WB.resize(ns);
         v.resize(3 * ns);
         score.resize((size_t)n);
         for (long j = 0; j < n + 2; j++) rho[(size_t)j] = r + ((double)(j - 1) - (double)m) * 0.5;
@@ -818,31 +818,14 @@ struct RayScores {
     bool ray(const Frame &f, double cx, double cy, double ux, double uy)
     {
         const size_t ns = (size_t)n + 2;
-        for (size_t j = 0; j < ns; j++) {
-            X[j] = cx + rho[j] * ux;
-            Y[j] = cy + rho[j] * uy;
-        }
         // the samples lie on a segment: inside when both ends are (the
         // region [0, w - 1) x [0, h - 1) is convex)
-        double p[3];
-        if (!sample(f, X[0], Y[0], p) || !sample(f, X[ns - 1], Y[ns - 1], p)) return false;
-        // gather the corners, one 32-bit word per pixel pair row (bytes of
-        // p00 at a[0..2], of p01 at a[3..5]: the words at a and a + 2, all
-        // within the two pixels), then the arithmetic in a loop of its own
-        ray_corners(X.data(), Y.data(), ns, (int64_t)f.stride, FX.data(), FY.data(), O.data());
-        const uint8_t *fp = f.p;
-        const int64_t st = (int64_t)f.stride;
-        uint32_t *w0 = &W[0], *w1 = w0 + ns, *w2 = w1 + ns, *w3 = w2 + ns;
-        for (size_t j = 0; j < ns; j++) {
-            const uint8_t *a = fp + O[j], *b = a + st;
-            std::memcpy(&w0[j], a, 4);
-            std::memcpy(&w1[j], a + 2, 4);
-            std::memcpy(&w2[j], b, 4);
-            std::memcpy(&w3[j], b + 2, 4);
-        }
-        for (int c = 0; c < 3; c++)
-            bilinear_words(&W[0], &W[ns], &W[2 * ns], &W[3 * ns], 8 * c, FX.data(), FY.data(), ns,
-                           &v[c * ns]);
+        const double r0 = rho[0], r1 = rho[ns - 1];
+        if (!inside(f, cx + r0 * ux, cy + r0 * uy) || !inside(f, cx + r1 * ux, cy + r1 * uy))
+            return false;
+        ray_gather(f.p, (int64_t)f.stride, cx, cy, ux, uy, rho.data(), ns, FX.data(), FY.data(),
+                   WA.data(), WB.data());
+        bilinear3(WA.data(), WB.data(), FX.data(), FY.data(), ns, v.data());
         step_score(v.data(), ns, score.data());
         return true;
     }
