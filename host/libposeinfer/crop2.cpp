@@ -1267,22 +1267,23 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
         if (!flank || near.empty()) continue;
         double cmax = near[0];
         for (const double c : near) cmax = std::max(cmax, c);
-        fl.resize(fi.size());
-        double lo = rs.score[(size_t)fi[0]], hi = lo;
-        for (size_t j = 0; j < fi.size(); j++) {
-            const double v = rs.score[(size_t)fi[j]];
-            fl[j] = v;
-            lo = std::min(lo, v);
-            hi = std::max(hi, v);
+        const size_t nf = fi.size();
+        fl.resize(nf);
+        for (size_t j = 0; j < nf; j++) fl[j] = rs.score[(size_t)fi[j]];
+        // ratio v grows with v (rounding is monotonic), so the flank values
+        // with ratio v <= cmax are its smallest ones, and the threshold (ratio
+        // times the mean of the middle two, (nf - 1) / 2 and nf / 2 in
+        // order) lies between ratio times each of them: when both of them
+        // are among those values the peak passes, when neither it fails;
+        // counted, the median taken only otherwise
+        if (ratio >= 0.0) {
+            const size_t m = count_scaled_le(fl.data(), nf, ratio, cmax);
+            if (m >= nf / 2 + 1) {
+                cnt++;
+                continue;
+            }
+            if (m < (nf - 1) / 2 + 1) continue;
         }
-        // the median lies within [lo, hi], and so (rounding is monotonic) the
-        // threshold within [ratio lo, ratio hi]: the median only when the
-        // strongest peak lies between
-        if (ratio >= 0.0 && cmax >= ratio * hi) {
-            cnt++;
-            continue;
-        }
-        if (ratio >= 0.0 && cmax < ratio * lo) continue;
         const double t = ratio * median_of(fl.data(), fl.size());
         if (cmax >= t) cnt++;
     }
