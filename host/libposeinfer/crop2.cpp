@@ -864,14 +864,6 @@ double median_of(double *v, size_t n)
     return (a + b) / 2.0;
 }
 
-// How many of q[0 .. n) are at most c. A loop of its own so that it vectorises.
-KERN2_CLONES long count_le(const double *q, long n, double c)
-{
-    long k = 0;
-    for (long j = 0; j < n; j++) k += q[j] <= c;
-    return k;
-}
-
 // How many of v[0 .. n) have k v[i] <= t (k v[i] rounded). A loop of its own
 // so that it vectorises.
 KERN2_CLONES size_t count_scaled_le(const double *v, size_t n, double k, double t)
@@ -890,30 +882,23 @@ void ray_edges(const Frame &f, const std::vector<double> &dirs, double cx, doubl
 {
     const int K = (int)dirs.size() / 2;
     thread_local RayScores rs;
-    thread_local std::vector<double> q;
     rs.setup(r, win);
     const long n = rs.n;
     re.ok.assign((size_t)K, 0);
     re.off.assign((size_t)K + 1, 0);
     re.cand.clear();
-    q.resize((size_t)n);
     for (int k = 0; k < K; k++) {
         re.off[(size_t)k] = (int)re.cand.size();
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
         re.ok[(size_t)k] = 1;
-        bool scaled = false;
         const long np = rs.peaks(thr);
         for (long m = 0; m < np; m++) {
             const long i = rs.pk[(size_t)m];
-            const double pos = rs.peak_pos(i);
-            if (ratio > 0.0) {
-                if (!scaled) {
-                    for (long j = 0; j < n; j++) q[(size_t)j] = ratio * rs.score[(size_t)j];
-                    scaled = true;
-                }
-                if (count_le(q.data(), n, rs.score[(size_t)i]) < (n + 1) / 2) continue;
-            }
-            re.cand.push_back(pos);
+            // (the position only of a peak kept)
+            if (ratio > 0.0 && count_scaled_le(rs.score.data(), (size_t)n, ratio,
+                                               rs.score[(size_t)i]) < (size_t)(n + 1) / 2)
+                continue;
+            re.cand.push_back(rs.peak_pos(i));
         }
     }
     re.off[(size_t)K] = (int)re.cand.size();
@@ -964,39 +949,69 @@ bool kasa(const std::vector<double> &x, const std::vector<double> &y,
     return true;
 }
 
+// e[i] = the distance of (px[i], py[i]) from (cx, cy), less r. A loop of
+// its own so that it vectorises.
+KERN2_CLONES void residuals(const double *__restrict px, const double *__restrict py, size_t n,
+                            double cx, double cy, double r, double *__restrict e)
+{
+    for (size_t i = 0; i < n; i++)
+        e[i] = std::sqrt((px[i] - cx) * (px[i] - cx) + (py[i] - cy) * (py[i] - cy)) - r;
+}
+
+// Tukey's biweight of res[i] / cut (0 outside (-1, 1)). A loop of its own
+// so that it vectorises.
+KERN2_CLONES void tukey_weights(const double *__restrict res, size_t n, double cut,
+                                double *__restrict w)
+{
+    for (size_t i = 0; i < n; i++) {
+        const double u = res[i] / cut;
+        w[i] = (-1.0 < u && u < 1.0) ? (1.0 - u * u) * (1.0 - u * u) : 0.0;
+    }
+}
+
 // Tukey-reweighted circle through the candidate nearest the current circle on
-// each ray (preprocess.py _fit_rays). Rays from (ox, oy).
+// each ray (preprocess.py _fit_rays). Rays from (ox, oy). Each candidate's
+// point (rho ux, rho uy) is the same in every iteration: taken once; its
+// residual for all candidates at once.
 bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, double oy,
               double *pcx, double *pcy, double *pr, const pp_params *p)
 {
     const int K = (int)dirs.size() / 2;
     double cx = *pcx - ox, cy = *pcy - oy, r = *pr;
-    std::vector<double> xs, ys, res, ares, wts;
+    thread_local std::vector<double> xs, ys, res, ares, wts, px, py, e;
     xs.reserve((size_t)K);
     ys.reserve((size_t)K);
     res.reserve((size_t)K);
+    const size_t nc = re.cand.size();
+    px.resize(nc);
+    py.resize(nc);
+    e.resize(nc);
+    for (int k = 0; k < K; k++) {
+        const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+        for (int i = re.off[(size_t)k]; i < re.off[(size_t)k + 1]; i++) {
+            px[(size_t)i] = re.cand[(size_t)i] * ux;
+            py[(size_t)i] = re.cand[(size_t)i] * uy;
+        }
+    }
     for (int it = 0; it < p->irls_iters; it++) {
         xs.clear();
         ys.clear();
         res.clear();
+        residuals(px.data(), py.data(), nc, cx, cy, r, e.data());
         for (int k = 0; k < K; k++) {
             const int a = re.off[(size_t)k], b = re.off[(size_t)k + 1];
             if (!re.ok[(size_t)k] || a == b) continue;
-            const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
-            double best = 0.0, be = -1.0, bres = 0.0;
-            for (int i = a; i < b; i++) {
-                const double rho = re.cand[(size_t)i];
-                const double px = rho * ux, py = rho * uy;
-                const double e = std::sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r;
-                if (be < 0.0 || std::fabs(e) < be) {
-                    best = rho;
-                    be = std::fabs(e);
-                    bres = e;
+            // the first of the smallest |e| (a NaN first stays)
+            int bi = a;
+            double be = std::fabs(e[(size_t)a]);
+            for (int i = a + 1; i < b; i++)
+                if (std::fabs(e[(size_t)i]) < be) {
+                    bi = i;
+                    be = std::fabs(e[(size_t)i]);
                 }
-            }
-            xs.push_back(best * ux);
-            ys.push_back(best * uy);
-            res.push_back(bres);
+            xs.push_back(px[(size_t)bi]);
+            ys.push_back(py[(size_t)bi]);
+            res.push_back(e[(size_t)bi]);
         }
         if (xs.size() < 8) return false;
         ares.resize(res.size());
@@ -1011,10 +1026,7 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
             sigma = std::max(smin, 1.4826 * median_of(ares.data(), na));
         const double cut = p->tukey_c * sigma;
         wts.resize(res.size());
-        for (size_t i = 0; i < res.size(); i++) {
-            const double u = res[i] / cut;
-            wts[i] = (-1.0 < u && u < 1.0) ? (1.0 - u * u) * (1.0 - u * u) : 0.0;
-        }
+        tukey_weights(res.data(), res.size(), cut, wts.data());
         if (!kasa(xs, ys, wts, &cx, &cy, &r)) return false;
     }
     *pcx = cx + ox;
