@@ -256,7 +256,12 @@ KERN2_CLONES void nms_row(const int32_t *up, const int32_t *mc, const int32_t *d
     }
 }
 
-void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edges &e)
+// The edges of the reduced image (see above) into e. pf[0 .. pf_len): memory
+// the votes will write next (the accumulator), brought into the cache a share
+// per row meanwhile: after a frame's network run it is no longer there, and
+// the votes land all over it.
+void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edges &e,
+           const uint8_t *pf, size_t pf_len)
 {
     const int gh = hs - 2, gw = ws - 2;
     const size_t P = (size_t)gw + 2;
@@ -318,6 +323,10 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
         gradient_row(r0, r0 + nb, r0 + 2 * nb, gw, V.data(), D.data(), mrow(i + 1) + 1,
                      &GX[(size_t)(i % 2) * gw], &GY[(size_t)(i % 2) * gw]);
         if (i >= 1) row_edges(i - 1);
+        // a share of pf (prefetched for writing)
+        const size_t lo = pf_len * (size_t)i / (size_t)gh,
+                     hi = pf_len * (size_t)(i + 1) / (size_t)gh;
+        for (size_t q = lo & ~(size_t)63; q < hi; q += 64) __builtin_prefetch(pf + q, 1, 3);
     }
     if (gh >= 1) row_edges(gh - 1);
     e.n = ne;
@@ -600,7 +609,17 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     if (hs < 8 || ws < 8) return out;
     thread_local Edges e;
     e.n = 0;
-    edges(red, hs, ws, p->edge_min, e);
+    // the accumulator of the last frame (frames of one size use the same)
+    const uint8_t *pf = nullptr;
+    size_t pf_len = 0;
+    if (!scratch.acc16.empty()) {
+        pf = (const uint8_t *)scratch.acc16.data();
+        pf_len = scratch.acc16.size() * sizeof(uint16_t);
+    } else if (!scratch.acc.empty()) {
+        pf = (const uint8_t *)scratch.acc.data();
+        pf_len = scratch.acc.size() * sizeof(int32_t);
+    }
+    edges(red, hs, ws, p->edge_min, e, pf, pf_len);
     if (e.n == 0) return out;
     const long lo = std::max(1L, ifloor(rmin / s));
     const long hi = ifloor(rmax / s) + 1;
