@@ -439,10 +439,6 @@ inline __attribute__((always_inline)) void box_max_t(T *acc, int nb, int hs, int
                                                      T *vmax, T *bmax)
 {
     const size_t W = (size_t)ws, plane = (size_t)hs * W;
-    for (size_t c = 0; c < plane; c++) {
-        vmax[c] = 0; // every sum is >= 0: the first bin wins a cell of zeros, as with -1
-        bmax[c] = 0;
-    }
     for (int Y = 0; Y <= hs; Y++) {
         for (int b = 0; b < nb && Y < hs; b++) {
             // the horizontal 3-sums of row Y (no neighbour beyond the row)
@@ -469,6 +465,15 @@ inline __attribute__((always_inline)) void box_max_t(T *acc, int nb, int hs, int
             const T *hm = hb + (size_t)(Yo % 3) * W;
             const T *hu = Yo > 0 ? hb + (size_t)((Yo - 1) % 3) * W : nullptr;
             const T *hd = Yo + 1 < hs ? hb + (size_t)((Yo + 1) % 3) * W : nullptr;
+            if (b == 0) {
+                // every sum is >= 0: the first bin wins a cell of zeros, as
+                // against -1, so its sums are the row's start
+                for (size_t c = 0; c < W; c++) {
+                    vm[c] = (T)((hu ? hu[c] : 0) + hm[c] + (hd ? hd[c] : 0));
+                    bm[c] = 0;
+                }
+                continue;
+            }
             for (size_t c = 0; c < W; c++) {
                 const T v = (T)((hu ? hu[c] : 0) + hm[c] + (hd ? hd[c] : 0));
                 const bool gt = v > vm[c];
