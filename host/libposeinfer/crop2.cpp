@@ -764,21 +764,28 @@ KERN2_CLONES void ray_gather(const uint8_t *fp, int64_t st, double cx, double cy
 
 // Bilinear interpolation of the three channels (preprocess.py _sample's
 // operations and order) from ray_gather's words; v planar (channel c at v[c
-// ns]). p01 - p00 and p11 - p10 are taken in integers: the same values as
-// in doubles (small integers are exact).
+// ns]). The bytes become doubles through their bits (no conversion
+// instruction): the same values.
 KERN2_CLONES void bilinear3(const uint64_t *__restrict wa, const uint64_t *__restrict wb,
                             const double *__restrict fx, const double *__restrict fy, size_t ns,
                             double *__restrict v)
 {
+    // a byte k as a double: the bits of 2^52 + k, less 2^52 (exact)
+    const uint64_t two52 = 0x4330000000000000ull;
+    const double d52 = 4503599627370496.0;
+    auto byte = [&](uint64_t w, int sh) {
+        const uint64_t u = ((w >> sh) & 255u) | two52;
+        double d;
+        std::memcpy(&d, &u, 8);
+        return d - d52;
+    };
     for (size_t j = 0; j < ns; j++) {
         const uint64_t a = wa[j], b = wb[j];
         for (int c = 0; c < 3; c++) {
-            const int32_t p00 = (int32_t)((a >> (8 * c)) & 255u),
-                          p01 = (int32_t)((a >> (24 + 8 * c)) & 255u),
-                          p10 = (int32_t)((b >> (16 + 8 * c)) & 255u),
-                          p11 = (int32_t)((b >> (40 + 8 * c)) & 255u);
-            const double top = (double)p00 + fx[j] * (double)(p01 - p00);
-            const double bot = (double)p10 + fx[j] * (double)(p11 - p10);
+            const double p00 = byte(a, 8 * c), p01 = byte(a, 24 + 8 * c), p10 = byte(b, 16 + 8 * c),
+                         p11 = byte(b, 40 + 8 * c);
+            const double top = p00 + fx[j] * (p01 - p00);
+            const double bot = p10 + fx[j] * (p11 - p10);
             v[(size_t)c * ns + j] = top + fy[j] * (bot - top);
         }
     }
