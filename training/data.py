@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from sim.names import parse_name
 
 from . import preprocess as pp
+from .refine import LUMA
 
 CACHE_PREFIX = ".spherepose-cache-"
 
@@ -270,17 +271,13 @@ def photometric(x, g, strength=1.0):
     return x.clamp(0, 1)
 
 
-# ITU-R BT.601 luma weights of R, G, B: what OpenCV's BGR2GRAY (and most mono
-# camera programs' colour-to-gray conversion) computes, so a gray training crop
-# looks like a mono camera's frame after preprocess.py widens it to three equal channels
-GRAY_WEIGHTS = (0.299, 0.587, 0.114)
-
-
 def gray(x, g, p):
     """With probability p per sample, the crop as a mono camera sees it: its luma in all
-    three channels. x float RGB [N, 3, S, S] in [0, 1]."""
+    three channels (refine.LUMA, OpenCV's BGR2GRAY weights, the ones refinement renders a
+    gray frame's texture with), as preprocess.py widens a one-channel frame.
+    x float RGB [N, 3, S, S] in [0, 1]."""
     n = x.shape[0]
-    w = torch.tensor(GRAY_WEIGHTS, dtype=x.dtype, device=x.device).view(1, 3, 1, 1)
+    w = torch.tensor(LUMA[::-1], dtype=x.dtype, device=x.device).view(1, 3, 1, 1)  # B, G, R -> R, G, B
     y = (x * w).sum(1, keepdim=True).expand_as(x)
     pick = (torch.rand(n, generator=g) < p).view(-1, 1, 1, 1).to(x.device)
     return torch.where(pick, y, x)
