@@ -537,23 +537,25 @@ KERN2_CLONES bool any_eq16(const uint16_t *v, size_t n, uint16_t x)
 }
 
 // The first index of x in v[0 .. n) (x is there): blocks looked at as a
-// whole first, the one holding it then one by one.
-size_t first_of(const int32_t *v, size_t n, int32_t x)
+// whole first (by any, the vector test for the element type), the one
+// holding it then one by one.
+template <class T, bool (*any)(const T *, size_t, T)> size_t first_of_t(const T *v, size_t n, T x)
 {
     const size_t blk = 256;
     size_t i = 0;
-    while (i + blk < n && !any_eq(v + i, blk, x)) i += blk;
+    while (i + blk < n && !any(v + i, blk, x)) i += blk;
     while (v[i] != x) i++;
     return i;
 }
 
+size_t first_of(const int32_t *v, size_t n, int32_t x)
+{
+    return first_of_t<int32_t, any_eq>(v, n, x);
+}
+
 size_t first_of(const uint16_t *v, size_t n, uint16_t x)
 {
-    const size_t blk = 256;
-    size_t i = 0;
-    while (i + blk < n && !any_eq16(v + i, blk, x)) i += blk;
-    while (v[i] != x) i++;
-    return i;
+    return first_of_t<uint16_t, any_eq16>(v, n, x);
 }
 
 inline int32_t max_of(const uint16_t *v, size_t n)
