@@ -563,7 +563,6 @@ inline int32_t max_of(const uint16_t *v, size_t n)
     return max_of16(v, n);
 }
 
-// Candidate circles, strongest first; *s_out the reduction.
 double rim_outside(double cx, double cy, double r, int h, int w);
 
 // The candidates from the box sums' per-cell largest (vmax) and its bin
@@ -604,6 +603,7 @@ void peaks(T *vmax, const T *bmax, const Edges &e, const std::vector<long> &star
     }
 }
 
+// Candidate circles, strongest first; *s_out the reduction.
 std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
                          double rmin, double rmax, int *s_out)
 {
@@ -1034,7 +1034,8 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
         for (int k = 0; k < K; k++) {
             const int a = re.off[(size_t)k], b = re.off[(size_t)k + 1];
             if (!re.ok[(size_t)k] || a == b) continue;
-            // the first of the smallest |e| (a NaN first stays)
+            // the first of the smallest |e| (finite: the circle comes from a fit;
+            // preprocess.py's NaN are the padding of its ragged rays, here absent)
             int bi = a;
             double be = std::fabs(e[(size_t)a]);
             for (int i = a + 1; i < b; i++)
@@ -1266,7 +1267,8 @@ bool outer_half_max(const double *sc, const double *rho, long n, long i, double 
 // Support of a circle (preprocess.py _support): the fraction of all rays
 // with a step peak within inlier_px of r of at least support_edge_min and
 // support_ratio times the ray's median step 2 inlier_px to support_flank_px
-// off r. Its rays' steps go to *keep.
+// off r. Each ray's peaks of at least ray_edge_min (sub-pixel place and outer
+// half-maximum) go to *keep, for the sphere's last step.
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
                const pp_params *p, Rays *keep)
 {
@@ -1411,8 +1413,10 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
 // refitted through the outermost edges near it (where an arc of the rim has
 // no colour step, the rays there find a band inside it, and the fit through
 // the candidates nearest it leans towards them): on each ray the outermost
-// candidate from 1.5 inlier_px inside the circle to 2 inlier_px outside, one
-// robust fit through these (the circle as it is when that fails); then that
+// candidate from 1.5 inlier_px inside the current circle to 2 inlier_px
+// outside, taken at the fit's first round and again at round irls_iters / 2
+// about the circle reached then, one robust fit through these (the circle as
+// it is when either pick has fewer than 8 rays or the fit fails); then that
 // circle's radius moved to the rim: on each ray the peak nearest where the
 // ray crosses it, its outer half-maximum less the edge half-width, the median
 // of their distances from the circle added to its radius.
