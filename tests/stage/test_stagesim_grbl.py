@@ -283,10 +283,11 @@ def test_feed_hold_and_resume(grbl):
 
 
 def test_reset_mid_move(grbl):
-    # a 3 s move: stagesim paces simulated time to the wall clock, so a test
-    # process stalled on a busy machine must not see the move end before
-    # its reset arrives
-    grbl.ok("G1 X20 F400")
+    # a 12 s move (the reset ends it, so the test does not wait for it):
+    # stagesim paces simulated time to the wall clock, so a test process
+    # stalled on a busy machine must not see the move end before its reset
+    # arrives (a 3 s move did, once, under a load of about 5 on 2 CPUs)
+    grbl.ok("G1 X20 F100")
     grbl.run_cycles(SECOND // 3)
     assert grbl.status()["state"] == "Run"
     grbl.write(b"\x18")
