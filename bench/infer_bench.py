@@ -145,17 +145,17 @@ def c_side(model, frames, rounds, threads, clock, camera_file):
 def bmp_copies(frames, work):
     """Each frame again as an uncompressed BMP (the same pixels, checked), for the
     decode-format comparison: a camera program can hand poseinfer either."""
+    from sim.frames import write_atomic
     d = work / "frames-bmp"
     d.mkdir(parents=True, exist_ok=True)
     out = []
     for f in frames:
-        b = d / (Path(f).stem + ".bmp")
         img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-        if not b.exists() or not np.array_equal(cv2.imread(str(b), cv2.IMREAD_UNCHANGED), img):
-            tmp = b.with_name(b.stem + ".part.bmp")
-            if not cv2.imwrite(str(tmp), img):
-                raise SystemExit(f"infer_bench: could not write {tmp}")
-            os.replace(tmp, b)  # never a half-written copy under the final name
+        ok, buf = cv2.imencode(".bmp", img)
+        if not ok or not np.array_equal(cv2.imdecode(buf, cv2.IMREAD_UNCHANGED), img):
+            raise SystemExit(f"infer_bench: {f}: no BMP of the same pixels")
+        b = d / (Path(f).stem + ".bmp")
+        write_atomic(str(b), buf.tobytes())
         out.append(b)
     return out
 
@@ -324,12 +324,12 @@ def main(args):
     py_cpu, py_wall = python_side(model, frames, args.rounds, args.threads, camera, refused)
     cli_wall = cli_side(model, frames, args.rounds, args.threads, camera_file, refused)
     idle = idle_cpu(model, args.idle_seconds, work)
-    timed_frames = [f for f in frames if str(f) not in refused]
-    fmt_png, fmt_bmp = format_side(model, timed_frames, max(1, args.rounds // 2), args.threads,
-                                   camera_file, work)
     timed = len(frames) - len(refused)
     if timed == 0:
         raise SystemExit(f"infer_bench: every frame refused: {refused}")
+    fmt_rounds = max(1, args.rounds // 2)
+    fmt_png, fmt_bmp = format_side(model, [f for f in frames if str(f) not in refused], fmt_rounds,
+                                   args.threads, camera_file, work)
 
     rows = []
 
@@ -457,7 +457,7 @@ def main(args):
         "## Frame format (the same pixels as PNG and as BMP)",
         "",
         f"The timed frames once more, each as PNG and as uncompressed BMP (written by OpenCV, the pixels "
-        f"checked equal), alternating in one run of {max(1, args.rounds // 2)} rounds (CPU p50, ms). The "
+        f"checked equal), alternating in one run of {fmt_rounds} rounds (CPU p50, ms). The "
         "answers are the same; only decoding differs. A camera program that writes BMP, or hands over raw "
         "pixels (`pi_infer_bgr`, `--camera`), skips PNG's inflate.",
         "",

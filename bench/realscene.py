@@ -397,7 +397,7 @@ def main(args):
             tpath = frames.write_family(os.path.join(args.out, fam), fam, args.n, args.seed, cam, args.texture,
                                         jobs=args.jobs, supersample=args.supersample,
                                         progress=bar.update if bar else None)
-        except RuntimeError as e:
+        except frames.FolderError as e:
             sys.exit(f"realscene: {e}")
         if bar:
             bar.close()

@@ -54,7 +54,7 @@ def render_corners(family, n, seed, out, texture, camera_file=None):
     try:
         if frames.reuse_or_clear(str(out), params):
             return out       # rendered before with the same parameters
-    except RuntimeError as e:
+    except frames.FolderError as e:
         raise SystemExit(f"refine_eval: {e}")
     truths = []
     for i in range(n):

@@ -22,7 +22,7 @@ def train_one_epoch(model, optimizer, scheduler, data, params, args, device, g, 
     default: all of `data`, shuffled with g, which also draws the augmentation."""
     from tqdm import tqdm
     model.train()
-    augment = {"photometric": args.photometric, "geometric": args.geometric, "gray": getattr(args, "gray", 0.0)}
+    augment = {"photometric": args.photometric, "geometric": args.geometric, "gray": args.gray}
     tot_loss = tot_err = n = 0.0
     if batches is None:
         batches = data.batches(args.batch_size, shuffle=True, generator=g, drop_last=True)

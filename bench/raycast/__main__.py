@@ -43,7 +43,7 @@ def main(argv=None):
     try:
         path = frames.write_family(args.out, args.family, args.n, args.seed, cam, args.texture,
                                    jobs=args.jobs, supersample=args.supersample)
-    except RuntimeError as e:
+    except frames.FolderError as e:
         sys.exit(f"raycast: {e}")
     print(f"{path}: {args.n} frames of {args.family} in {time.time() - t0:.1f} s")
 

@@ -58,11 +58,16 @@ def _comparable(params):
     return out
 
 
+class FolderError(RuntimeError):
+    """A frame folder this tool will not fill: someone else's files, or a seed that draws a pose
+    twice. The message says which folder and what to do; the commands print it and exit."""
+
+
 def reuse_or_clear(outdir, params):
     """True when `outdir` holds a complete set made with `params` (params.json the same, truth.jsonl
     there). Otherwise make `outdir` the tool's own for a new set and return False: the earlier set's
     frames and records go, and params.json is written first, so a killed run leaves a folder this
-    tool may clear again. A folder with PNG files and no params.json is someone else's: RuntimeError."""
+    tool may clear again. A folder with PNG files and no params.json is someone else's: FolderError."""
     os.makedirs(outdir, exist_ok=True)
     ppath, tpath = os.path.join(outdir, "params.json"), os.path.join(outdir, "truth.jsonl")
     old = None
@@ -76,7 +81,7 @@ def reuse_or_clear(outdir, params):
             return True
     pngs = sorted(n for n in os.listdir(outdir) if n.lower().endswith(".png"))
     if old is None and pngs:
-        raise RuntimeError(f"{outdir}: holds {len(pngs)} PNG file(s) (e.g. {pngs[0]}) and no params.json "
+        raise FolderError(f"{outdir}: holds {len(pngs)} PNG file(s) (e.g. {pngs[0]}) and no params.json "
                            f"of this tool; not replacing them: choose an empty or new folder")
     if os.path.exists(tpath):
         os.remove(tpath)
@@ -151,6 +156,6 @@ def write_family(outdir, family, n, seed, cam, texture_path, jobs=1, supersample
                 progress(1)
     names = [t["file"] for t in truths]
     if len(set(names)) != len(names):
-        raise RuntimeError(f"{outdir}: two frames drew the same pose; use another seed")
+        raise FolderError(f"{outdir}: two frames drew the same pose; use another seed")
     finish_folder(outdir, params, truths)
     return tpath

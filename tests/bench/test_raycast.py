@@ -245,6 +245,6 @@ def test_family_folder_reuse_and_foreign_frames(tmp_path, small_texture):
     theirs = tmp_path / "theirs"
     theirs.mkdir()
     (theirs / "photo.png").write_bytes(b"not ours")
-    with pytest.raises(RuntimeError, match="no params.json"):
+    with pytest.raises(frames.FolderError, match="no params.json"):
         frames.write_family(str(theirs), "clean", 1, 3, cam, small_texture, supersample=1)
     assert (theirs / "photo.png").read_bytes() == b"not ours"

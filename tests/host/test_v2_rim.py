@@ -41,5 +41,5 @@ def test_rim_and_outermost_edges(frames, monkeypatch):
     assert found[2] < frames[0][1][2] and circle_error(found, frames[0][1])[1] > 0.6, found
 
 
-def test_same_circles_in_c(frames, tmp_path):
-    assert_same_circles_in_c([path for path, _ in frames], tmp_path)
+def test_same_circles_in_c(frames, tmp_path, poseinfer, timeout_scale):
+    assert_same_circles_in_c(poseinfer, [path for path, _ in frames], tmp_path, timeout_scale)

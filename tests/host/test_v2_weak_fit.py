@@ -31,5 +31,5 @@ def test_weak_fit_moves_out_to_the_rim(frames, monkeypatch):
         assert ec > 2.0, (path.name, ec)
 
 
-def test_weak_fit_same_circle_in_c(frames, tmp_path):
-    assert_same_circles_in_c([path for path, _ in frames], tmp_path)
+def test_weak_fit_same_circle_in_c(frames, tmp_path, poseinfer, timeout_scale):
+    assert_same_circles_in_c(poseinfer, [path for path, _ in frames], tmp_path, timeout_scale)

@@ -5,21 +5,19 @@ them, the error measure of docs/bench/localise.md, and the check that the C runt
 circle Python finds."""
 import json
 import math
-import os
 import subprocess
 import sys
 from pathlib import Path
 
 import cv2
 
-from textures.generate import render as texture_rgb
+from sim.camera import REFERENCE as CAMERA
+from textures.generate import render as texture_rgb, write_png_atomic
 from training import preprocess as pp
 from training.export import read_metadata
 
 REPO = Path(__file__).resolve().parents[2]
 MODEL = REPO / "training" / "models" / "Texture_3_color.onnx"
-CAMERA = {"width": 640, "height": 512, "focal_mm": 16.0, "pixel_mm": 0.0096, "distance_mm": 250.0,
-          "sphere_diameter_mm": 40.0}
 
 
 def params():
@@ -33,7 +31,7 @@ def render_frames(folder, cases):
     sys.path.insert(0, str(REPO / "bench"))
     from raycast import camera, frames as rc_frames, render
     tex_path = Path(folder) / "Texture_3_color.png"
-    cv2.imwrite(str(tex_path), texture_rgb(3, "color")[:, :, ::-1])
+    write_png_atomic(texture_rgb(3, "color"), str(tex_path))
     tex = render.load_texture(str(tex_path))
     cam = camera.load_camera(None)
     out = []
@@ -52,17 +50,17 @@ def circle_error(found, truth):
     return math.hypot(found[0] - truth[0], found[1] - truth[1]), abs(found[2] / truth[2] - 1) * 100
 
 
-def assert_same_circles_in_c(paths, tmp_path):
-    """poseinfer (POSEINFER, default host/build/poseinfer) prints the circle Python finds."""
-    exe = Path(os.environ.get("POSEINFER", REPO / "host" / "build" / "poseinfer"))
-    assert exe.exists(), f"{exe} is not built (make -C host)"
+def assert_same_circles_in_c(poseinfer, paths, tmp_path, timeout_scale=1.0):
+    """poseinfer (conftest's fixture) prints the circle Python finds, for every frame of one run."""
     cam = Path(tmp_path) / "camera.json"
     cam.write_text(json.dumps(CAMERA))
+    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam)]
+                          + [str(path) for path in paths], capture_output=True, text=True,
+                          timeout=120 * timeout_scale)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = [json.loads(s) for s in proc.stdout.splitlines()]
+    assert [line["file"] for line in lines] == [str(path) for path in paths], proc.stdout
     p = params()
-    for path in paths:
+    for path, line in zip(paths, lines):
         cx, cy, r, _ = pp.find_sphere(cv2.imread(str(path), cv2.IMREAD_COLOR), p, CAMERA)
-        proc = subprocess.run([str(exe), "--model", str(MODEL), "--camera-file", str(cam), str(path)],
-                              capture_output=True, text=True, timeout=120)
-        assert proc.returncode == 0, proc.stdout + proc.stderr
-        line = json.loads(proc.stdout.splitlines()[0])
         assert line["circle"] == [round(cx + 0.5, 3), round(cy + 0.5, 3), round(r, 3)], (path.name, line)
