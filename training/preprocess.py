@@ -601,6 +601,14 @@ def _kasa(x, y, wts):
     return cx, cy, math.sqrt(rr)
 
 
+def _tukey_weights(res, p):
+    """The robust fit's weights of its residuals: Tukey's biweight at tukey_c times the scale
+    (1.4826 times the median |residual|, at least sigma_min_px)."""
+    sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(v) for v in res]))
+    u = np.asarray(res, dtype=np.float64) / (p["tukey_c"] * sigma)
+    return np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
+
+
 def _fit_rays(cands, dirs, ox, oy, cx, cy, r, p):
     """Robust circle through one edge candidate per ray: each iteration takes, on every ray, the
     candidate nearest the current circle, weights it by Tukey's biweight of its distance to that
@@ -628,11 +636,7 @@ def _fit_rays(cands, dirs, ox, oy, cx, cy, r, p):
         res = e[idx, j].tolist()
         xs = (best * ux[:, 0]).tolist()
         ys = (best * uy[:, 0]).tolist()
-        sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(v) for v in res]))
-        cut = p["tukey_c"] * sigma
-        u = np.asarray(res) / cut
-        wts = np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
-        fit = _kasa(xs, ys, wts)
+        fit = _kasa(xs, ys, _tukey_weights(res, p))
         if fit is None:
             return None
         cx, cy, r = fit
@@ -759,7 +763,6 @@ def _outermost(rays, dirs, fit, p):
     cands = [[] if bad[k] else pos[k][peak[k]].tolist() for k in range(len(dirs))]
     lo, hi = -1.5 * p["inlier_px"], 2.0 * p["inlier_px"]
     x, y, nr = 0.0, 0.0, r  # the circle about the rays' origin (cx, cy)
-    xs, ys = [], []
     for it in range(p["irls_iters"]):
         res = []
         if it == 0 or it == p["irls_iters"] // 2:
@@ -783,13 +786,7 @@ def _outermost(rays, dirs, fit, p):
             for px, py in zip(xs, ys):
                 px, py = px - x, py - y
                 res.append(math.sqrt(px * px + py * py) - nr)
-        sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(v) for v in res]))
-        cut = p["tukey_c"] * sigma
-        wts = []
-        for v in res:
-            u = v / cut
-            wts.append((1.0 - u * u) * (1.0 - u * u) if -1.0 < u < 1.0 else 0.0)
-        f = _kasa(xs, ys, wts)
+        f = _kasa(xs, ys, _tukey_weights(res, p))
         if f is None:
             return cx, cy, r
         x, y, nr = f

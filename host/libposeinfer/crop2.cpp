@@ -1002,6 +1002,26 @@ KERN2_CLONES void tukey_weights(const double *__restrict res, size_t n, double c
     }
 }
 
+// The robust fit's weights of its residuals (preprocess.py _tukey_weights):
+// Tukey's biweight at tukey_c times the scale, 1.4826 times the median
+// |residual|, at least sigma_min_px. ares is scratch.
+void robust_weights(const std::vector<double> &res, const pp_params *p, std::vector<double> &ares,
+                    std::vector<double> &wts)
+{
+    const size_t na = res.size();
+    ares.resize(na);
+    for (size_t i = 0; i < na; i++) ares[i] = std::fabs(res[i]);
+    // the scale is sigma_min_px when 1.4826 times the upper middle value
+    // is not above it (the median is at most that value, and rounding is
+    // monotonic): counted, the median taken only otherwise
+    const double smin = p->sigma_min_px;
+    double sigma = smin;
+    if (count_scaled_le(ares.data(), na, 1.4826, smin) < na / 2 + 1)
+        sigma = std::max(smin, 1.4826 * median_of(ares.data(), na));
+    wts.resize(na);
+    tukey_weights(res.data(), na, p->tukey_c * sigma, wts.data());
+}
+
 // Tukey-reweighted circle through the candidate nearest the current circle on
 // each ray (preprocess.py _fit_rays). Rays from (ox, oy). Each candidate's
 // point (rho ux, rho uy) is the same in every iteration: taken once; its
@@ -1048,19 +1068,7 @@ bool fit_rays(const RayEdges &re, const std::vector<double> &dirs, double ox, do
             res.push_back(e[(size_t)bi]);
         }
         if (xs.size() < 8) return false;
-        ares.resize(res.size());
-        for (size_t i = 0; i < res.size(); i++) ares[i] = std::fabs(res[i]);
-        // the scale is sigma_min_px when 1.4826 times the upper middle value
-        // is not above it (the median is at most that value, and rounding is
-        // monotonic): counted, the median taken only otherwise
-        const size_t na = ares.size();
-        const double smin = p->sigma_min_px;
-        double sigma = smin;
-        if (count_scaled_le(ares.data(), na, 1.4826, smin) < na / 2 + 1)
-            sigma = std::max(smin, 1.4826 * median_of(ares.data(), na));
-        const double cut = p->tukey_c * sigma;
-        wts.resize(res.size());
-        tukey_weights(res.data(), res.size(), cut, wts.data());
+        robust_weights(res, p, ares, wts);
         if (!kasa(xs, ys, wts, &cx, &cy, &r)) return false;
     }
     *pcx = cx + ox;
@@ -1433,8 +1441,6 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
     // at the first round and again after half the rounds
     double x = 0.0, y = 0.0, nr = r;
     bool fitted = true;
-    xs.clear();
-    ys.clear();
     for (int it = 0; it < p->irls_iters && fitted; it++) {
         res.clear();
         if (it == 0 || it == p->irls_iters / 2) {
@@ -1464,25 +1470,11 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
                 fitted = false;
                 break;
             }
-        } else
-            for (size_t i = 0; i < xs.size(); i++) {
-                const double px = xs[i] - x, py = ys[i] - y;
-                res.push_back(std::sqrt(px * px + py * py) - nr);
-            }
-        // the robust scale as in fit_rays
-        const size_t na = res.size();
-        ares.resize(na);
-        for (size_t i = 0; i < na; i++) ares[i] = std::fabs(res[i]);
-        const double smin = p->sigma_min_px;
-        double sigma = smin;
-        if (count_scaled_le(ares.data(), na, 1.4826, smin) < na / 2 + 1)
-            sigma = std::max(smin, 1.4826 * median_of(ares.data(), na));
-        const double cut = p->tukey_c * sigma;
-        wts.resize(na);
-        for (size_t i = 0; i < na; i++) {
-            const double u = res[i] / cut;
-            wts[i] = (-1.0 < u && u < 1.0) ? (1.0 - u * u) * (1.0 - u * u) : 0.0;
+        } else {
+            res.resize(xs.size());
+            residuals(xs.data(), ys.data(), xs.size(), x, y, nr, res.data());
         }
+        robust_weights(res, p, ares, wts);
         fitted = kasa(xs, ys, wts, &x, &y, &nr);
     }
     double nx = a.cx + x, ny = a.cy + y;
