@@ -744,13 +744,13 @@ def _grow(img, dirs, fit, p):
     return best
 
 
-def _outermost(rays, dirs, fit, p):
+def _outermost(rays, peaks, dirs, fit, p):
     """The sphere refitted through the outermost edges near it: on an arc where the limb and the
     backdrop have nearly the same colour, the rays find only a texture band or the limb's shading
     1.5-2.5 px inside the rim, and the fit through the candidates nearest it leans towards them;
     the rim is the sphere's outermost edge. rays: _ray_scores of the support's rays from its
-    centre (within +-support_flank_px, no rays cast again); their edge candidates (at least
-    ray_edge_min). One robust fit (irls_iters rounds, as every pass) through, on each ray, the
+    centre (within +-support_flank_px, no rays cast again); peaks: their edge candidates
+    (_peaks at ray_edge_min, shared with _rim). One robust fit (irls_iters rounds, as every pass) through, on each ray, the
     outermost candidate from 1.5 inlier_px inside the current circle to 2 inlier_px outside
     (farther out, a post or the backdrop's clutter), taken at the first round and once more
     after half the rounds, about the circle the fit has reached then (a circle pulled inwards
@@ -758,8 +758,8 @@ def _outermost(rays, dirs, fit, p):
     other round, it creeps out onto the backdrop's edges). Returns (cx, cy, r), the circle
     unchanged when the refit fails."""
     cx, cy, r = fit[0], fit[1], fit[2]
-    rho, score, bad = rays
-    peak, pos = _peaks(rho, score, p["ray_edge_min"])
+    bad = rays[2]
+    peak, pos = peaks
     cands = [[] if bad[k] else pos[k][peak[k]].tolist() for k in range(len(dirs))]
     lo, hi = -1.5 * p["inlier_px"], 2.0 * p["inlier_px"]
     x, y, nr = 0.0, 0.0, r  # the circle about the rays' origin (cx, cy)
@@ -795,12 +795,12 @@ def _outermost(rays, dirs, fit, p):
     return cx + x, cy + y, nr
 
 
-def _rim(rays, dirs, fit, new, p):
+def _rim(rays, peaks, dirs, fit, new, p):
     """The refitted circle `new`'s radius moved to the rim, from its steepest colour step: where
     the limb darkens towards the rim (shading, under blur and anti-aliasing), the largest step
     along a ray lies up to a pixel inside the outline, while the step's outer flank stays
     anchored to it. rays: _ray_scores of the support's rays from the centre of `fit` (the circle
-    before the refit; the same rays as _outermost's). On each, the step peak nearest the new
+    before the refit; the same rays and peaks as _outermost's). On each, the step peak nearest the new
     circle (within inlier_px of where the ray crosses it, at least ray_edge_min, first on ties)
     gives its outer half-maximum (the first place outwards where the step falls to half the peak
     sample's); less the frame's edge half-width (the middle one of those half-maxima's distances
@@ -811,7 +811,7 @@ def _rim(rays, dirs, fit, new, p):
     cx, cy = fit[0], fit[1]
     nx, ny, nr = new
     rho, score, bad = rays
-    peak, pos = _peaks(rho, score, p["ray_edge_min"])
+    peak, pos = peaks
     n = score.shape[1]
     dx, dy = nx - cx, ny - cy
     outer, width = [None] * len(dirs), []
@@ -939,7 +939,8 @@ def _find_sphere_v2(frame, p, camera=None):
                            f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
     # the sphere's circle from its support's rays (the C++ keeps them from computing the support)
     rays = _ray_scores(frame, dirs, a[0], a[1], a[2], p["support_flank_px"])
-    return _rim(rays, dirs, a, _outermost(rays, dirs, a, p), p)
+    peaks = _peaks(rays[0], rays[1], p["ray_edge_min"])  # the edge candidates of both steps
+    return _rim(rays, peaks, dirs, a, _outermost(rays, peaks, dirs, a, p), p)
 
 
 # ---- the public steps -----------------------------------------------------------------------

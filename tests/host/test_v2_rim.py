@@ -31,12 +31,12 @@ def test_rim_and_outermost_edges(frames, monkeypatch):
         ec, er = circle_error(pp.find_sphere(img, p, CAMERA), truth)
         assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
     # without the refit the `shifts` and `edge` frames stay off centre (what this guards)
-    monkeypatch.setattr(pp, "_outermost", lambda rays, dirs, fit, p: fit[:3])
+    monkeypatch.setattr(pp, "_outermost", lambda rays, peaks, dirs, fit, p: fit[:3])
     for i in (1, 2):
         ec, _ = circle_error(pp.find_sphere(imgs[i], p, CAMERA), frames[i][1])
         assert ec > 0.7, (frames[i][0].name, ec)
     # without either, the `rig` frame's radius is the steepest step's, too small
-    monkeypatch.setattr(pp, "_rim", lambda rays, dirs, fit, new, p: new)
+    monkeypatch.setattr(pp, "_rim", lambda rays, peaks, dirs, fit, new, p: new)
     found = pp.find_sphere(imgs[0], p, CAMERA)
     assert found[2] < frames[0][1][2] and circle_error(found, frames[0][1])[1] > 0.6, found
 
