@@ -528,6 +528,30 @@ static inline vf vatan2(vf y, vf x)
     return vsel(vneg(y), -a, a);
 }
 
+/* The two pieces of geometry both the value pass and the Jacobian compute
+ * (the Jacobian again, for its own samples: see geometry_pass), written once
+ * so that the two give the same bits. The ray through pixel (ax, ay): its
+ * image-plane slope (x, y), p2 = x^2 + y^2, inv = 1 / |(x, y, -1)|. */
+static inline __attribute__((always_inline)) void
+ray_slope(vf ax, vf ay, float dcx, float dcy, float inv_f, vf *x, vf *y, vf *p2, vf *inv)
+{
+    *x = (ax - dcx) * inv_f;
+    *y = -(ay - dcy) * inv_f;
+    *p2 = *x * *x + *y * *y;
+    *inv = vrsqrt(*p2 + 1.0f);
+}
+
+/* The body frame's x and z of the normal n (R^T n), and rho2 = bx^2 + bz^2
+ * kept off 0 (the texture's pole). */
+static inline __attribute__((always_inline)) void body_xz(const float R[9], vf n0, vf n1, vf n2,
+                                                          vf *bx, vf *bz, vf *rho2)
+{
+    *bx = R[0] * n0 + R[3] * n1 + R[6] * n2;
+    *bz = R[2] * n0 + R[5] * n1 + R[8] * n2;
+    vf r2 = *bx * *bx + *bz * *bz;
+    *rho2 = vsel(vneg(1e-12f - r2), r2, (vf){0} + 1e-12f);
+}
+
 /* Where each sample's ray meets the sphere (training/refine.py normals), the
  * body direction b = R^T n, and where b reads the texture (sample's first
  * half): texel offset, bilinear weights. gp (GEO_*): the circle's centre
@@ -544,8 +568,9 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const 
     const float dist2 = dist * dist, kw = gp[GEO_KW], kh = gp[GEO_KH];
     const float u0 = (float)(tw / 2.0 - 0.5), v0 = (float)(th / 2.0 - 0.5);
     for (long k = 0; k < n; k += RF_VL) {
-        vf x = (vload(w->a[A_X] + k) - dcx) * inv_f, y = -(vload(w->a[A_Y] + k) - dcy) * inv_f;
-        vf p2 = x * x + y * y, inv = vrsqrt(p2 + 1.0f), inv2 = inv * inv;
+        vf x, y, p2, inv;
+        ray_slope(vload(w->a[A_X] + k), vload(w->a[A_Y] + k), dcx, dcy, inv_f, &x, &y, &p2, &inv);
+        vf inv2 = inv * inv;
         /* disc = (O.d)^2 - |O|^2 + 1 written without the cancellation of the
          * two large terms: 1 - dist^2 sin^2 of the ray's angle */
         vf disc = 1.0f - dist2 * p2 * inv2;
@@ -553,11 +578,9 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const 
         vf sd = disc * vrsqrt(disc);
         vf t = dist * inv - sd;
         vf n0 = t * x * inv, n1 = t * y * inv, n2 = dist * p2 * inv2 + sd * inv;
-        vf bx = R[0] * n0 + R[3] * n1 + R[6] * n2;
+        vf bx, bz, rho2;
+        body_xz(R, n0, n1, n2, &bx, &bz, &rho2);
         vf by = R[1] * n0 + R[4] * n1 + R[7] * n2;
-        vf bz = R[2] * n0 + R[5] * n1 + R[8] * n2;
-        vf rho2 = bx * bx + bz * bz;
-        rho2 = vsel(vneg(1e-12f - rho2), rho2, (vf){0} + 1e-12f);
         vf irho = vrsqrt(rho2), rho = rho2 * irho;
         vf ut = vatan2(bx, bz) * kw + u0;
         vf vt = v0 - vatan2(by, rho) * kh;
@@ -998,16 +1021,14 @@ static inline __attribute__((always_inline)) void jac_sums_n(float *const *q, lo
         if (k % RF_JBLOCK == 0)
             for (int i = 0; i < RF_JSUMS; i++) acc[i] = (vf){0};
         /* the ray and d (u, v) / d b of the value pass, computed again for
-         * these samples alone with geometry_pass's operations (the same bits;
-         * keep the two alike). t is kept: written out again, GCC fuses one of
-         * its multiply-adds otherwise and its bits move. */
-        vf x = (vload(q[A_X] + k) - dcx) * g_invf, y = -(vload(q[A_Y] + k) - dcy) * g_invf;
-        vf p2 = x * x + y * y, inv = vrsqrt(p2 + 1.0f), t = vload(q[A_T] + k);
+         * these samples alone through geometry_pass's own ray_slope and
+         * body_xz (the same bits). t is kept: written out again, GCC fuses one
+         * of its multiply-adds otherwise and its bits move. */
+        vf x, y, p2, inv, t = vload(q[A_T] + k);
+        ray_slope(vload(q[A_X] + k), vload(q[A_Y] + k), dcx, dcy, g_invf, &x, &y, &p2, &inv);
         vf n0 = vload(q[A_NX] + k), n1 = vload(q[A_NY] + k), n2 = vload(q[A_NZ] + k);
-        vf bx = R[0] * n0 + R[3] * n1 + R[6] * n2;
-        vf bz = R[2] * n0 + R[5] * n1 + R[8] * n2;
-        vf rho2 = bx * bx + bz * bz;
-        rho2 = vsel(vneg(1e-12f - rho2), rho2, (vf){0} + 1e-12f);
+        vf bx, bz, rho2;
+        body_xz(R, n0, n1, n2, &bx, &bz, &rho2);
         vf irho = vrsqrt(rho2), krho = kw * (irho * irho);
         vf e0 = x * inv, e1 = y * inv, e2 = -inv; /* the ray's direction d */
         /* n.d = -cos of the angle of incidence: about -0.4 at the samples'
