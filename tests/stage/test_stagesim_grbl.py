@@ -257,7 +257,7 @@ def test_settings_survive_restart_and_power_up_alarm(make_stage, firmware_elf, t
 
 
 def test_feed_hold_and_resume(grbl):
-    grbl.ok("G1 X20 F400")                            # 3 s: see test_reset_mid_move
+    grbl.ok("G1 X20 F100")                            # 12 s: see test_reset_mid_move
     grbl.run_cycles(SECOND // 3)
     grbl.write(b"!")
     held = grbl.wait_state("Hold", timeout=10, poll=0.02)
