@@ -39,7 +39,8 @@ complete set is reused, never rendered again: the ray-caster's folders and
 dataset.json "complete", the texture's SHA-256) and a killed run resumes
 them; a gray copy is written into <folder>.partial and renamed when whole
 (and made again when its colour set was). Per-frame results go to
-<out>/results_n<N>.jsonl, the group and set counts to <out>/summary_n<N>.json.
+<out>/results_n<N>[-norefine][-only-...].jsonl, the group and set counts to
+<out>/summary_n<N>[...].json.
 """
 import argparse
 import datetime
@@ -485,6 +486,13 @@ def write_atomic(path, text):
     os.replace(tmp, path)
 
 
+def run_stem(args):
+    """What a run's result files are named after: its size, --no-refine, --only (runs of the same sets
+    with other options do not overwrite each other's)."""
+    stem = f"n{args.n}" + ("-norefine" if args.no_refine else "")
+    return stem + ("-only-" + "-".join(args.only) if args.only else "")
+
+
 def command_line():
     def rel(a):
         inside = os.path.isabs(a) and os.path.commonpath([a, ROOT]) == ROOT
@@ -565,9 +573,10 @@ def main(args):
     if sha256(args.model) != model_sha:
         notes.append("the model file changed during the run: the table mixes two models")
 
-    results_path = os.path.join(out, f"results_n{args.n}.jsonl")
+    stem = run_stem(args)
+    results_path = os.path.join(out, f"results_{stem}.jsonl")
     write_atomic(results_path, "".join(json.dumps(r) + "\n" for r in all_rows))
-    write_atomic(os.path.join(out, f"summary_n{args.n}.json"),
+    write_atomic(os.path.join(out, f"summary_{stem}.json"),
                  json.dumps({"groups": gcounts, "sets": counts, "n": args.n}, indent=1) + "\n")
     table = group_table(gcounts)
     met = all(target(g, c)[1] for g, c in gcounts.items())

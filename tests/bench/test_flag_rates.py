@@ -170,5 +170,6 @@ def test_end_to_end_and_reuse(tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     assert frame.stat().st_mtime_ns == stamp
-    rows = [json.loads(line) for line in (out / "results_n2.jsonl").read_text().splitlines()]
+    results = out / "results_n2-only-gray-rc-clean-vtk-trainscene.jsonl"
+    rows = [json.loads(line) for line in results.read_text().splitlines()]
     assert {r["set"] for r in rows} == {"gray-rc-clean", "vtk-trainscene"}
