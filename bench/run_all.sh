@@ -24,5 +24,8 @@ $PY bench/daemon_load.py --markdown build/bench/daemon_load.md | tee build/bench
 echo "=== real scenes: the default model on the independent ray-caster's frames (docs/bench/realscene.md)"
 $PY bench/realscene.py --n 100 --seed 0 --out build/bench/realscene --no-progress | tee build/bench/realscene.txt
 
+echo "=== confidence: flag rates on fresh held-out frames, both renderers (docs/bench/confidence.md)"
+$PY bench/flag_rates.py --no-progress --markdown build/bench/flag_rates.md | tee build/bench/flag_rates.txt
+
 echo "=== firmware: flash and RAM"
 make --no-print-directory -C firmware size | tee build/bench/firmware_size.txt
