@@ -41,8 +41,18 @@
  * cost). */
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define RF_X86_GCC 1
-#define RF_CLONES \
-    __attribute__((target_clones("avx512f", "avx2", "default"), optimize("fp-contract=fast")))
+/* For checking one version's results on this machine, RF_CLONE_LIST and
+ * RF_NO_AVX512 (the hand-written AVX-512 paths left out) narrow the choice:
+ * -DRF_CLONE_LIST='"avx2", "default"' -DRF_NO_AVX512 runs the AVX2 version on
+ * an AVX-512 machine, -DRF_CLONE_LIST='"default"' -DRF_NO_AVX512 the baseline
+ * (GCC notes that a lone clone is ignored). A build that ships keeps the defaults. */
+#ifndef RF_CLONE_LIST
+#define RF_CLONE_LIST "avx512f", "avx2", "default"
+#endif
+#define RF_CLONES __attribute__((target_clones(RF_CLONE_LIST), optimize("fp-contract=fast")))
+#ifndef RF_NO_AVX512
+#define RF_AVX512_PATHS 1
+#endif
 #else
 #define RF_CLONES
 #endif
@@ -602,7 +612,7 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const 
         *(vf *)(w->a[A_NZ] + k) = n2;
     }
 }
-#ifdef RF_X86_GCC
+#ifdef RF_AVX512_PATHS
 /* The bilinear lookups below, 16 samples at a time with AVX-512: each
  * texel's three channels in one 64-bit load, the loads of a block gathered
  * together, and the texels of the block after next asked for (after the
@@ -940,7 +950,7 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     w->gp[GEO_KW] = (float)(tw / (2 * M_PI));
     w->gp[GEO_KH] = (float)(th / M_PI);
     geometry_pass(w, npad, Rf, w->gp, tw, th, tr);
-#ifdef RF_X86_GCC
+#ifdef RF_AVX512_PATHS
     if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw"))
         gather_pass_avx512(w, npad, tex, tr, t->scale[lev]);
     else
@@ -1160,7 +1170,7 @@ RF_CLONES static long active_samples(const rf_work *w, int32_t *idx)
     return m;
 }
 
-#ifdef RF_X86_GCC
+#ifdef RF_AVX512_PATHS
 /* dst[k] = src[idx[k]], k < m (idx padded to RF_LANES with valid indices) */
 __attribute__((target("avx512f"))) static void pick_avx512(float *dst, const float *src,
                                                            const int32_t *idx, long m)
@@ -1182,7 +1192,7 @@ static long jac_samples(rf_work *w)
     for (int i = 0; i < NK; i++) {
         const float *src = w->a[keep[i]];
         float *dst = w->ja[keep[i]];
-#ifdef RF_X86_GCC
+#ifdef RF_AVX512_PATHS
         if (__builtin_cpu_supports("avx512f"))
             pick_avx512(dst, src, idx, mp);
         else
