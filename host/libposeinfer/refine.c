@@ -132,6 +132,7 @@ struct rf_work {
     float *ja[A_COUNT]; /* the Jacobian pass's samples (jac_samples), within buf */
     int32_t *off;       /* texel offsets */
     int32_t *idx;       /* the Jacobian pass's samples (jac_samples) */
+    long nact;          /* their count when the lookups chose them, else -1 */
     void *buf;
     size_t cap;           /* samples the arrays hold */
     long np, npad;        /* samples of the current level, and padded */
@@ -382,21 +383,24 @@ void rf_work_free(rf_work *w)
     free(w);
 }
 
-/* Room for n samples (rounded up to RF_LANES) in the sample arrays. */
+/* Room for n samples (rounded up to RF_LANES) in the sample arrays; the
+ * Jacobian's arrays and idx one vector longer (whole vectors are stored
+ * past their last sample: gather_pass_avx512). */
 static int reserve(rf_work *w, size_t n)
 {
     n = (n + RF_LANES - 1) / RF_LANES * RF_LANES;
     if (n <= w->cap) return 0;
+    size_t js = n + RF_LANES;
     void *p = NULL;
-    if (posix_memalign(&p, 64, n * (2 * A_COUNT * sizeof(float) + 2 * sizeof(int32_t)))) return -1;
+    if (posix_memalign(&p, 64, (n + js) * (A_COUNT * sizeof(float) + sizeof(int32_t)))) return -1;
     free(w->buf);
     w->buf = p;
     w->cap = n;
     for (int k = 0; k < A_COUNT; k++) {
         w->a[k] = (float *)p + (size_t)k * n;
-        w->ja[k] = (float *)p + (size_t)(A_COUNT + k) * n;
+        w->ja[k] = (float *)p + (size_t)A_COUNT * n + (size_t)k * js;
     }
-    w->off = (int32_t *)((float *)p + (size_t)2 * A_COUNT * n);
+    w->off = (int32_t *)((float *)p + (size_t)A_COUNT * (n + js));
     w->idx = w->off + n;
     return 0;
 }
@@ -617,9 +621,13 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const 
  * texel's three channels in one 64-bit load, the loads of a block gathered
  * together, and the texels of the block after next asked for (after the
  * network has run, the texture is mostly out of the caches); the arithmetic
- * is the loop's, lane by lane. */
-__attribute__((target("avx512f,avx512bw"))) static void
-gather_pass_avx512(rf_work *w, long n, const uint16_t *restrict tex, int tr, float scale)
+ * is the loop's, lane by lane. Only the values are kept for every sample:
+ * the derivatives, which only the Jacobian reads, go straight to its arrays
+ * (w->ja) for the samples that have one (np: samples before the padding),
+ * with their indices in w->idx, as jac_samples would pick them; returns
+ * their count. */
+__attribute__((target("avx512f,avx512bw"))) static long
+gather_pass_avx512(rf_work *w, long n, long np, const uint16_t *restrict tex, int tr, float scale)
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
@@ -634,6 +642,9 @@ gather_pass_avx512(rf_work *w, long n, const uint16_t *restrict tex, int tr, flo
     const __m512 sc = _mm512_set1_ps(scale);
     const __m256i one = _mm256_set1_epi32(1), three = _mm256_set1_epi32(3),
                   four = _mm256_set1_epi32(4), down = _mm256_set1_epi32(tr - 8);
+    const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15),
+                  nosign = _mm512_set1_epi32(0x7fffffff);
+    long m = 0;
     for (long k = 0; k < n; k += 16) {
         /* the texels of the samples two blocks on (the tiles of the cell's
          * top and bottom rows): their misses overlap this block's (the gather
@@ -661,7 +672,8 @@ gather_pass_avx512(rf_work *w, long n, const uint16_t *restrict tex, int tr, flo
             g[2][h] = _mm512_i32gather_epi64(o01, base, 8);
             g[3][h] = _mm512_i32gather_epi64(_mm256_add_epi32(o01, dx), base, 8);
         }
-        __m512 a = _mm512_load_ps(fx + k), b = _mm512_load_ps(fy + k);
+        __m512 a = _mm512_load_ps(fx + k), b = _mm512_load_ps(fy + k), du[3], dv[3];
+        __m512i any = _mm512_setzero_si512();
         for (int c = 0; c < 3; c++) {
             __m512 v[4];
             for (int q = 0; q < 4; q++) {
@@ -673,12 +685,27 @@ gather_pass_avx512(rf_work *w, long n, const uint16_t *restrict tex, int tr, flo
             __m512 d0 = _mm512_sub_ps(a10, a00), d1 = _mm512_sub_ps(a11, a01);
             /* fused as the other AVX-512 loops fuse (the scaling is exact) */
             __m512 top = _mm512_fmadd_ps(a, d0, a00), bot = _mm512_fmadd_ps(a, d1, a01);
-            __m512 dv = _mm512_sub_ps(bot, top);
-            _mm512_store_ps(w->a[A_V0 + c] + k, _mm512_fmadd_ps(b, dv, top));
-            _mm512_store_ps(w->a[A_DU0 + c] + k, _mm512_fmadd_ps(b, _mm512_sub_ps(d1, d0), d0));
-            _mm512_store_ps(w->a[A_DV0 + c] + k, dv);
+            dv[c] = _mm512_sub_ps(bot, top);
+            du[c] = _mm512_fmadd_ps(b, _mm512_sub_ps(d1, d0), d0);
+            _mm512_store_ps(w->a[A_V0 + c] + k, _mm512_fmadd_ps(b, dv[c], top));
+            any = _mm512_or_si512(
+                any, _mm512_or_si512(_mm512_castps_si512(du[c]), _mm512_castps_si512(dv[c])));
+        }
+        /* active_samples' choice: a derivative nonzero (-0 is 0), not padding */
+        __mmask16 act = _mm512_test_epi32_mask(any, nosign);
+        if (k + 16 > np) act &= (__mmask16)(np > k ? (1u << (np - k)) - 1 : 0);
+        if (act) {
+            _mm512_storeu_si512(w->idx + m,
+                                _mm512_maskz_compress_epi32(
+                                    act, _mm512_add_epi32(_mm512_set1_epi32((int)k), lane)));
+            for (int c = 0; c < 3; c++) {
+                _mm512_storeu_ps(w->ja[A_DU0 + c] + m, _mm512_maskz_compress_ps(act, du[c]));
+                _mm512_storeu_ps(w->ja[A_DV0 + c] + m, _mm512_maskz_compress_ps(act, dv[c]));
+            }
+            m += __builtin_popcount(act);
         }
     }
+    return m;
 }
 #endif
 
@@ -713,14 +740,11 @@ static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex, int tr
 /* A gray frame sees the texture as its luma, in channel 0: its three
  * channels are equal, so the passes after this one take channel 0 alone and
  * count it three times. */
-static void luma_pass(rf_work *w, long n)
+static void luma_pass(float *const *a, int first, long n)
 {
-    static const int q[3][3] = {{A_V0, A_V1, A_V2}, {A_DU0, A_DU1, A_DU2}, {A_DV0, A_DV1, A_DV2}};
-    for (int m = 0; m < 3; m++) {
-        float *b = w->a[q[m][0]], *g = w->a[q[m][1]], *r = w->a[q[m][2]];
-        for (long k = 0; k < n; k++)
-            b[k] = (float)(b[k] * RF_LUMA_B + g[k] * RF_LUMA_G + r[k] * RF_LUMA_R);
-    }
+    float *b = a[first], *g = a[first + 1], *r = a[first + 2];
+    for (long k = 0; k < n; k++)
+        b[k] = (float)(b[k] * RF_LUMA_B + g[k] * RF_LUMA_G + r[k] * RF_LUMA_R);
 }
 
 /* Per channel, the sums of the photometric fit over the samples (double
@@ -950,9 +974,10 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     w->gp[GEO_KW] = (float)(tw / (2 * M_PI));
     w->gp[GEO_KH] = (float)(th / M_PI);
     geometry_pass(w, npad, Rf, w->gp, tw, th, tr);
+    w->nact = -1;
 #ifdef RF_AVX512_PATHS
     if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw"))
-        gather_pass_avx512(w, npad, tex, tr, t->scale[lev]);
+        w->nact = gather_pass_avx512(w, npad, np, tex, tr, t->scale[lev]);
     else
 #endif
     {
@@ -965,9 +990,13 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
         }
         gather_pass(w, npad, tex, tr, t->scale[lev]);
     }
-    if (w->gray) luma_pass(w, npad);
+    /* (a sample's luma derivative is nonzero where one of its channels' is:
+     * the Jacobian's samples are the same whether chosen before or after) */
+    luma_pass(w->a, A_V0, w->gray ? npad : 0);
+    for (int m = A_DU0; m <= A_DV0; m += 3)
+        luma_pass(w->nact < 0 ? w->a : w->ja, m, w->gray ? (w->nact < 0 ? npad : w->nact) : 0);
     /* the padding takes no part: no texture there */
-    for (int m = A_V0; m <= A_DV2; m++)
+    for (int m = A_V0; m <= (w->nact < 0 ? A_DV2 : A_V2); m++)
         for (long k = np; k < npad; k++) w->a[m][k] = 0;
     double q[3][20], oo[3];
     fit_sums(w, npad, w->gray ? 1 : 3, q);
@@ -1185,10 +1214,17 @@ static long jac_samples(rf_work *w)
 {
     static const int keep[] = {A_O0, A_O1, A_O2, A_NX,  A_NY,  A_NZ,  A_X,   A_Y,   A_T,
                                A_V0, A_V1, A_V2, A_DU0, A_DU1, A_DU2, A_DV0, A_DV1, A_DV2};
-    enum { NK = sizeof keep / sizeof keep[0] };
-    long m = active_samples(w, w->idx), mp = (m + RF_LANES - 1) / RF_LANES * RF_LANES;
+    /* the lookups chose the samples and wrote their derivatives (w->nact) */
+    int picked = w->nact < 0;
+    long m = picked ? active_samples(w, w->idx) : w->nact;
+    long mp = (m + RF_LANES - 1) / RF_LANES * RF_LANES;
+    int NK =
+        (int)(sizeof keep / sizeof keep[0]) - (picked ? 0 : 6); /* keep's last 6: the derivatives */
     int32_t *idx = w->idx;
     for (long k = m; k < mp; k++) idx[k] = 0; /* read, then zeroed below */
+    if (!picked)
+        for (int i = A_DU0; i <= A_DV2; i++)
+            for (long k = m; k < mp; k++) w->ja[i][k] = 0;
     for (int i = 0; i < NK; i++) {
         const float *src = w->a[keep[i]];
         float *dst = w->ja[keep[i]];
