@@ -76,6 +76,16 @@
  * o & 3 and J & 1 is bit 2 of o (tr is a multiple of 8). */
 #define RF_TILE_DX(o)         (1 + ((((o)&3) + 1) & 4))
 #define RF_TILE_DY(o, tr)     ((o)&4 ? (tr)-4 : 4)
+/* A level whose values fit in 10 bits (the finest level of textures up to
+ * 2048 wide) is stored as pairs instead: entry (I, J) holds texels (I, J)
+ * and (I + 1, J), 10 bits a channel (B | G << 10 | R << 20, the right texel
+ * in the upper 32 bits), so that a bilinear lookup reads two entries, (I, J)
+ * and (I, J + 1). The entries lie in columns of 8 rows, one 64-byte cache
+ * line each, the columns of a band of 8 rows side by side: both entries lie
+ * in one line for 7 of 8 rows (1.125 lines a lookup against 1.875 for the
+ * tiles). Entry (I, J) is at RF_PAIR_OFF(I, J, tr), tr: entries a band. */
+#define RF_PAIR_OFF(I, J, tr) (((J) >> 3) * (tr) + (I)*8 + ((J)&7))
+#define RF_PAIR_DY(o, tr)     (((o)&7) == 7 ? (tr)-7 : 1)
 
 struct rf_texture {
     int w[RF_LEVELS], h[RF_LEVELS];
@@ -89,6 +99,7 @@ struct rf_texture {
      * longitude wrapped, the latitude clamped) so that a bilinear lookup reads
      * texels (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1) without a test. */
     uint16_t *px[RF_LEVELS];
+    uint64_t *pairs[RF_LEVELS]; /* the level as pairs (above) instead of px, or NULL */
     float scale[RF_LEVELS];
 };
 
@@ -343,16 +354,40 @@ rf_texture *rf_texture_new(const rf_image *img, char *err)
         float mul = 1;
         for (int ww = img->width; ww > t->w[l] && mul < 256; ww /= 2) mul *= 4;
         t->scale[l] = 1.0f / mul;
+        int fits = 1;
         for (int j = -1; j <= lh; j++) {
             int sj = j < 0 ? 0 : j >= lh ? lh - 1 : j;
             const float *src = lv[l] + (size_t)sj * lw * 3;
             for (int i = -1; i <= lw; i++) {
                 int si = i < 0 ? lw - 1 : i >= lw ? 0 : i;
                 uint16_t *q = p + (size_t)RF_TILE_OFF(i + 1, j + 1, t->tr[l]) * 4;
-                for (int c = 0; c < 3; c++) q[c] = (uint16_t)lrintf(src[(size_t)si * 3 + c] * mul);
+                for (int c = 0; c < 3; c++) {
+                    q[c] = (uint16_t)lrintf(src[(size_t)si * 3 + c] * mul);
+                    fits &= q[c] < 1024;
+                }
             }
         }
         t->px[l] = p;
+        if (!fits) continue;
+        /* the same texels as pairs: entries (I, J), I <= w (the lookup's
+         * left column), J <= h + 1, in bands of 8 rows */
+        int cols = lw + 1, bands = (lh + 2 + 7) / 8, tr = cols * 8;
+        uint64_t *e = tex_alloc((size_t)bands * tr * sizeof(uint64_t));
+        if (!e) goto oom;
+        memset(e, 0, (size_t)bands * tr * sizeof(uint64_t));
+        for (int J = 0; J < lh + 2; J++)
+            for (int I = 0; I < cols; I++) {
+                uint64_t v[2];
+                for (int x = 0; x < 2; x++) {
+                    const uint16_t *q = p + (size_t)RF_TILE_OFF(I + x, J, t->tr[l]) * 4;
+                    v[x] = q[0] | (uint64_t)q[1] << 10 | (uint64_t)q[2] << 20;
+                }
+                e[RF_PAIR_OFF(I, J, tr)] = v[0] | v[1] << 32;
+            }
+        free(p);
+        t->px[l] = NULL;
+        t->pairs[l] = e;
+        t->tr[l] = tr;
     }
     for (int l = 0; l < RF_LEVELS; l++) free(lv[l]);
     return t;
@@ -367,7 +402,7 @@ oom:
 void rf_texture_free(rf_texture *t)
 {
     if (!t) return;
-    for (int l = 0; l < RF_LEVELS; l++) free(t->px[l]);
+    for (int l = 0; l < RF_LEVELS; l++) free(t->px[l]), free(t->pairs[l]);
     free(t);
 }
 
@@ -571,12 +606,12 @@ static inline __attribute__((always_inline)) void body_xz(const float R[9], vf n
  * half): texel offset, bilinear weights. gp (GEO_*): the circle's centre
  * minus the arrays' origin, 1 / f, camera to centre (unit sphere), texels a
  * radian along u and along v; tw, th: the texture level's size, tr its
- * texels a row of tiles. The ray and d (u, v) / d b, which only the Jacobian
+ * texels a row of tiles (pair: entries a band of the pairs' layout). The ray and d (u, v) / d b, which only the Jacobian
  * reads, are not kept: jac_sums_n computes them again for its few samples
  * (writing them for every sample cost more). */
 enum { GEO_DCX, GEO_DCY, GEO_INVF, GEO_DIST, GEO_KW, GEO_KH };
 RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const float gp[6], int tw,
-                                    int th, int tr)
+                                    int th, int tr, int pair)
 {
     const float dcx = gp[GEO_DCX], dcy = gp[GEO_DCY], inv_f = gp[GEO_INVF], dist = gp[GEO_DIST];
     const float dist2 = dist * dist, kw = gp[GEO_KW], kh = gp[GEO_KH];
@@ -609,7 +644,7 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const 
         j0 = vimin(vimax(j0, -1), th - 1);
         i0 += 1;
         j0 += 1;
-        *(vi *)(w->off + k) = RF_TILE_OFF(i0, j0, tr);
+        *(vi *)(w->off + k) = pair ? RF_PAIR_OFF(i0, j0, tr) : RF_TILE_OFF(i0, j0, tr);
         *(vf *)(w->a[A_T] + k) = t;
         *(vf *)(w->a[A_NX] + k) = n0;
         *(vf *)(w->a[A_NY] + k) = n1;
@@ -618,16 +653,17 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const 
 }
 #ifdef RF_AVX512_PATHS
 /* The bilinear lookups below, 16 samples at a time with AVX-512: each
- * texel's three channels in one 64-bit load, the loads of a block gathered
- * together, and the texels of the block after next asked for (after the
- * network has run, the texture is mostly out of the caches); the arithmetic
- * is the loop's, lane by lane. Only the values are kept for every sample:
- * the derivatives, which only the Jacobian reads, go straight to its arrays
- * (w->ja) for the samples that have one (np: samples before the padding),
- * with their indices in w->idx, as jac_samples would pick them; returns
- * their count. */
+ * texel's three channels in one 64-bit load (a pair of texels where the
+ * level is stored as pairs), the loads of a block gathered together, and the
+ * texels of the block after next asked for (after the network has run, the
+ * texture is mostly out of the caches); the arithmetic is the loop's, lane
+ * by lane. Only the values are kept for every sample: the derivatives, which
+ * only the Jacobian reads, go straight to its arrays (w->ja) for the samples
+ * that have one (np: samples before the padding), with their indices in
+ * w->idx, as jac_samples would pick them; returns their count. */
 __attribute__((target("avx512f,avx512bw"))) static long
-gather_pass_avx512(rf_work *w, long n, long np, const uint16_t *restrict tex, int tr, float scale)
+gather_pass_avx512(rf_work *w, long n, long np, const void *restrict tex, int pair, int tr,
+                   float scale)
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
@@ -639,49 +675,78 @@ gather_pass_avx512(rf_work *w, long n, long np, const uint16_t *restrict tex, in
             ix[l] = (short)(l < 8 ? 4 * l + c : l < 16 ? 32 + 4 * (l - 8) + c : 0);
         pick[c] = _mm512_loadu_si512(ix);
     }
+    const __m512i lodw =
+                      _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30),
+                  hidw = _mm512_add_epi32(lodw, _mm512_set1_epi32(1)),
+                  ten = _mm512_set1_epi32(0x3ff);
     const __m512 sc = _mm512_set1_ps(scale);
     const __m256i one = _mm256_set1_epi32(1), three = _mm256_set1_epi32(3),
-                  four = _mm256_set1_epi32(4), down = _mm256_set1_epi32(tr - 8);
+                  four = _mm256_set1_epi32(4), seven = _mm256_set1_epi32(7),
+                  down = _mm256_set1_epi32(tr - 8); /* (tr - 7 = 1 + down: RF_PAIR_DY) */
     const __m512i lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15),
                   nosign = _mm512_set1_epi32(0x7fffffff);
     long m = 0;
     for (long k = 0; k < n; k += 16) {
-        /* the texels of the samples two blocks on (the tiles of the cell's
-         * top and bottom rows): their misses overlap this block's (the gather
-         * alone waits for each block in turn) */
+        /* the texels of the samples two blocks on (the cell's top and bottom
+         * rows): their misses overlap this block's (the gather alone waits
+         * for each block in turn) */
         if (k + 32 < n)
             for (int l = 0; l < 16; l++) {
                 int32_t o = off[k + 32 + l];
-                const uint16_t *p = tex + (long)o * 4;
+                const long long *p = base + o;
                 __builtin_prefetch(p);
-                __builtin_prefetch(p + (long)RF_TILE_DY(o, tr) * 4);
+                __builtin_prefetch(p + (pair ? RF_PAIR_DY(o, tr) : RF_TILE_DY(o, tr)));
             }
         __m256i lo = _mm256_load_si256((const __m256i *)(off + k)),
                 hi = _mm256_load_si256((const __m256i *)(off + k + 8));
         __m256i o[2] = {lo, hi};
-        __m512i g[4][2];
-        for (int h = 0; h < 2; h++) {
-            /* RF_TILE_DX, RF_TILE_DY lane by lane */
-            __m256i dx = _mm256_add_epi32(
-                one, _mm256_and_si256(_mm256_add_epi32(_mm256_and_si256(o[h], three), one), four));
-            __m256i dy = _mm256_add_epi32(
-                four, _mm256_and_si256(_mm256_srai_epi32(_mm256_slli_epi32(o[h], 29), 31), down));
-            __m256i o01 = _mm256_add_epi32(o[h], dy);
-            g[0][h] = _mm512_i32gather_epi64(o[h], base, 8);
-            g[1][h] = _mm512_i32gather_epi64(_mm256_add_epi32(o[h], dx), base, 8);
-            g[2][h] = _mm512_i32gather_epi64(o01, base, 8);
-            g[3][h] = _mm512_i32gather_epi64(_mm256_add_epi32(o01, dx), base, 8);
+        __m512 v[3][4]; /* channel c's texels (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1) */
+        if (pair) {
+            __m512i g[2][2];
+            for (int h = 0; h < 2; h++) {
+                /* RF_PAIR_DY lane by lane: 1, or tr - 7 in a band's last row */
+                __m256i last = _mm256_cmpeq_epi32(_mm256_and_si256(o[h], seven), seven);
+                __m256i dy = _mm256_add_epi32(one, _mm256_and_si256(last, down));
+                g[0][h] = _mm512_i32gather_epi64(o[h], base, 8);
+                g[1][h] = _mm512_i32gather_epi64(_mm256_add_epi32(o[h], dy), base, 8);
+            }
+            for (int r = 0; r < 2; r++) {
+                __m512i left = _mm512_permutex2var_epi32(g[r][0], lodw, g[r][1]),
+                        right = _mm512_permutex2var_epi32(g[r][0], hidw, g[r][1]);
+                for (int c = 0; c < 3; c++) {
+                    __m512i l = _mm512_and_si512(_mm512_srli_epi32(left, 10 * c), ten),
+                            q = _mm512_and_si512(_mm512_srli_epi32(right, 10 * c), ten);
+                    v[c][2 * r] = _mm512_mul_ps(_mm512_cvtepi32_ps(l), sc);
+                    v[c][2 * r + 1] = _mm512_mul_ps(_mm512_cvtepi32_ps(q), sc);
+                }
+            }
+        } else {
+            __m512i g[4][2];
+            for (int h = 0; h < 2; h++) {
+                /* RF_TILE_DX, RF_TILE_DY lane by lane */
+                __m256i dx = _mm256_add_epi32(
+                    one,
+                    _mm256_and_si256(_mm256_add_epi32(_mm256_and_si256(o[h], three), one), four));
+                __m256i dy = _mm256_add_epi32(
+                    four,
+                    _mm256_and_si256(_mm256_srai_epi32(_mm256_slli_epi32(o[h], 29), 31), down));
+                __m256i o01 = _mm256_add_epi32(o[h], dy);
+                g[0][h] = _mm512_i32gather_epi64(o[h], base, 8);
+                g[1][h] = _mm512_i32gather_epi64(_mm256_add_epi32(o[h], dx), base, 8);
+                g[2][h] = _mm512_i32gather_epi64(o01, base, 8);
+                g[3][h] = _mm512_i32gather_epi64(_mm256_add_epi32(o01, dx), base, 8);
+            }
+            for (int c = 0; c < 3; c++)
+                for (int q = 0; q < 4; q++) {
+                    __m512i x = _mm512_permutex2var_epi16(g[q][0], pick[c], g[q][1]);
+                    v[c][q] = _mm512_mul_ps(
+                        _mm512_cvtepi32_ps(_mm512_cvtepu16_epi32(_mm512_castsi512_si256(x))), sc);
+                }
         }
         __m512 a = _mm512_load_ps(fx + k), b = _mm512_load_ps(fy + k), du[3], dv[3];
         __m512i any = _mm512_setzero_si512();
         for (int c = 0; c < 3; c++) {
-            __m512 v[4];
-            for (int q = 0; q < 4; q++) {
-                __m512i x = _mm512_permutex2var_epi16(g[q][0], pick[c], g[q][1]);
-                v[q] = _mm512_mul_ps(
-                    _mm512_cvtepi32_ps(_mm512_cvtepu16_epi32(_mm512_castsi512_si256(x))), sc);
-            }
-            __m512 a00 = v[0], a10 = v[1], a01 = v[2], a11 = v[3];
+            __m512 a00 = v[c][0], a10 = v[c][1], a01 = v[c][2], a11 = v[c][3];
             __m512 d0 = _mm512_sub_ps(a10, a00), d1 = _mm512_sub_ps(a11, a01);
             /* fused as the other AVX-512 loops fuse (the scaling is exact) */
             __m512 top = _mm512_fmadd_ps(a, d0, a00), bot = _mm512_fmadd_ps(a, d1, a01);
@@ -710,8 +775,10 @@ gather_pass_avx512(rf_work *w, long n, long np, const uint16_t *restrict tex, in
 #endif
 
 /* The bilinear lookups (sample's second half): values and their derivatives
- * along the texel axes, per channel. tr: texels a row of tiles. */
-static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex, int tr, float scale)
+ * along the texel axes, per channel. tr: texels a row of tiles; pairs: the
+ * level as pairs (tr: entries a band), else NULL. */
+static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex,
+                        const uint64_t *restrict pairs, int tr, float scale)
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
@@ -722,7 +789,18 @@ static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex, int tr
                     *restrict ee[3] = {e0, e1, e2};
     for (int c = 0; c < 3; c++) {
         float *restrict val = vv[c], *restrict du = uu[c], *restrict dv = ee[c];
-        for (long k = 0; k < n; k++) {
+        for (long k = 0; k < n && pairs; k++) {
+            int32_t o = off[k];
+            uint64_t p0 = pairs[o] >> 10 * c, p1 = pairs[o + RF_PAIR_DY(o, tr)] >> 10 * c;
+            float a00 = (float)(p0 & 0x3ff) * scale, a10 = (float)(p0 >> 32 & 0x3ff) * scale,
+                  a01 = (float)(p1 & 0x3ff) * scale, a11 = (float)(p1 >> 32 & 0x3ff) * scale;
+            float a = fx[k], b = fy[k];
+            float top = a00 + a * (a10 - a00), bot = a01 + a * (a11 - a01);
+            val[k] = top + b * (bot - top);
+            du[k] = (a10 - a00) + b * ((a11 - a01) - (a10 - a00));
+            dv[k] = bot - top;
+        }
+        for (long k = 0; k < n && !pairs; k++) {
             int32_t o = off[k];
             long dx = (long)RF_TILE_DX(o) * 4, dy = (long)RF_TILE_DY(o, tr) * 4;
             const uint16_t *p = tex + (long)o * 4 + c;
@@ -962,6 +1040,7 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
                      double cy, double r, double fixed_f, rf_fit *fit)
 {
     const uint16_t *tex = t->px[lev];
+    const uint64_t *pairs = t->pairs[lev];
     int tw = t->w[lev], th = t->h[lev], tr = t->tr[lev];
     long np = w->np, npad = w->npad;
     double f = focal_of(r, fixed_f), tan_a = r / f, dist = sqrt(1.0 + tan_a * tan_a) / tan_a;
@@ -973,11 +1052,12 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     w->gp[GEO_DIST] = (float)dist;
     w->gp[GEO_KW] = (float)(tw / (2 * M_PI));
     w->gp[GEO_KH] = (float)(th / M_PI);
-    geometry_pass(w, npad, Rf, w->gp, tw, th, tr);
+    geometry_pass(w, npad, Rf, w->gp, tw, th, tr, pairs != NULL);
     w->nact = -1;
 #ifdef RF_AVX512_PATHS
     if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw"))
-        w->nact = gather_pass_avx512(w, npad, np, tex, tr, t->scale[lev]);
+        w->nact = gather_pass_avx512(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
+                                     tr, t->scale[lev]);
     else
 #endif
     {
@@ -985,10 +1065,15 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
          * run the texture is mostly out of the caches */
         for (long k = 0; k < np; k++) {
             int32_t o = w->off[k];
-            __builtin_prefetch(tex + (long)o * 4);
-            __builtin_prefetch(tex + ((long)o + RF_TILE_DY(o, tr)) * 4);
+            if (pairs) {
+                __builtin_prefetch(pairs + o);
+                __builtin_prefetch(pairs + o + RF_PAIR_DY(o, tr));
+            } else {
+                __builtin_prefetch(tex + (long)o * 4);
+                __builtin_prefetch(tex + ((long)o + RF_TILE_DY(o, tr)) * 4);
+            }
         }
-        gather_pass(w, npad, tex, tr, t->scale[lev]);
+        gather_pass(w, npad, tex, pairs, tr, t->scale[lev]);
     }
     /* (a sample's luma derivative is nonzero where one of its channels' is:
      * the Jacobian's samples are the same whether chosen before or after) */
