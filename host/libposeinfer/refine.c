@@ -32,30 +32,65 @@
 #define M_PI 3.14159265358979323846
 #endif
 
-/* The per-pixel loops are compiled three ways and picked at run time. Every
- * version does the same operations in the same order (no sums reordered: the
- * lanes are written out); the AVX-512 version fuses a multiply and an add
- * where the expression has one (ISO C mode fuses nothing unless told, and
- * x86-64's baseline has no fused multiply-add), so its bits differ from the
- * other two's by rounding (poses within about 1e-5 degrees: docs/refine.md,
- * cost). */
+/* The per-pixel loops are compiled three ways and picked at run time
+ * (rf_version). Every version does the same operations in the same order (no
+ * sums reordered: the lanes are written out); the AVX-512 version fuses a
+ * multiply and an add where the expression has one, the AVX2 and baseline
+ * versions fuse none whatever the build's flags (-mfma, -march=native would
+ * otherwise let the compiler fuse there too), so that those two give the same
+ * bits and the AVX-512 version differs from them by rounding (docs/refine.md,
+ * cost). A loop is written once, as NAME_body, and RF_VERSIONS makes NAME,
+ * which calls the version rf_version picks. */
+#define RF_BODY static inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define RF_X86_GCC 1
-/* For checking one version's results on this machine, RF_CLONE_LIST and
- * RF_NO_AVX512 (the hand-written AVX-512 paths left out) narrow the choice:
- * -DRF_CLONE_LIST='"avx2", "default"' -DRF_NO_AVX512 runs the AVX2 version on
- * an AVX-512 machine, -DRF_CLONE_LIST='"default"' -DRF_NO_AVX512 the baseline
- * (GCC notes that a lone clone is ignored). A build that ships keeps the defaults. */
-#ifndef RF_CLONE_LIST
-#define RF_CLONE_LIST "avx512f", "avx2", "default"
-#endif
-#define RF_CLONES __attribute__((target_clones(RF_CLONE_LIST), optimize("fp-contract=fast")))
-#ifndef RF_NO_AVX512
-#define RF_AVX512_PATHS 1
-#endif
+#define RF_VERSIONS(ret, name, params, args)                                                     \
+    __attribute__((target("avx512f"), optimize("fp-contract=fast"))) static ret name##_v2 params \
+    {                                                                                            \
+        return name##_body args;                                                                 \
+    }                                                                                            \
+    __attribute__((target("avx2"), optimize("fp-contract=off"))) static ret name##_v1 params     \
+    {                                                                                            \
+        return name##_body args;                                                                 \
+    }                                                                                            \
+    __attribute__((optimize("fp-contract=off"))) static ret name##_v0 params                     \
+    {                                                                                            \
+        return name##_body args;                                                                 \
+    }                                                                                            \
+    static ret name params                                                                       \
+    {                                                                                            \
+        int v_ = rf_version();                                                                   \
+        return v_ == 2 ? name##_v2 args : v_ == 1 ? name##_v1 args : name##_v0 args;             \
+    }
 #else
-#define RF_CLONES
+#define RF_VERSIONS(ret, name, params, args) \
+    static ret name params                   \
+    {                                        \
+        return name##_body args;             \
+    }
 #endif
+
+static int rf_forced = -1; /* rf_set_version */
+
+/* 2: AVX-512 (F and BW: the hand-written lookups need both), 1: AVX2, 0: the baseline */
+static int rf_version(void)
+{
+#ifdef RF_X86_GCC
+    if (rf_forced >= 0) return rf_forced;
+    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw")) return 2;
+    return __builtin_cpu_supports("avx2") ? 1 : 0;
+#else
+    return 0;
+#endif
+}
+
+int rf_set_version(int v)
+{
+    rf_forced = -1;
+    int best = rf_version();
+    rf_forced = v < 0 ? -1 : v < best ? v : best;
+    return rf_version();
+}
 
 /* Lanes of the written-out sums; the sample arrays are padded to a multiple. */
 #define RF_LANES 16
@@ -610,8 +645,8 @@ static inline __attribute__((always_inline)) void body_xz(const float R[9], vf n
  * reads, are not kept: jac_sums_n computes them again for its few samples
  * (writing them for every sample cost more). */
 enum { GEO_DCX, GEO_DCY, GEO_INVF, GEO_DIST, GEO_KW, GEO_KH };
-RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const float gp[6], int tw,
-                                    int th, int tr, int pair)
+RF_BODY void geometry_pass_body(rf_work *w, long n, const float R[9], const float gp[6], int tw,
+                                int th, int tr, int pair)
 {
     const float dcx = gp[GEO_DCX], dcy = gp[GEO_DCY], inv_f = gp[GEO_INVF], dist = gp[GEO_DIST];
     const float dist2 = dist * dist, kw = gp[GEO_KW], kh = gp[GEO_KH];
@@ -651,7 +686,11 @@ RF_CLONES static void geometry_pass(rf_work *w, long n, const float R[9], const 
         *(vf *)(w->a[A_NZ] + k) = n2;
     }
 }
-#ifdef RF_AVX512_PATHS
+RF_VERSIONS(void, geometry_pass,
+            (rf_work * w, long n, const float R[9], const float gp[6], int tw, int th, int tr,
+             int pair),
+            (w, n, R, gp, tw, th, tr, pair))
+#ifdef RF_X86_GCC
 /* The bilinear lookups below, 16 samples at a time with AVX-512: each
  * texel's three channels in one 64-bit load (a pair of texels where the
  * level is stored as pairs), the loads of a block gathered together, and the
@@ -829,7 +868,7 @@ static void luma_pass(float *const *a, int first, long n)
  * lanes: the sum of squares it leaves is a small difference of them):
  * T^2 m (m = 1, nx, ny, nz, nx nx, nx ny, nx nz, ny ny, ny nz, nz nz),
  * T (1, n), T obs (1, n) (the sums of obs and obs^2 come from pixel_set). */
-RF_CLONES static void fit_sums(const rf_work *w, long npad, int nch, double q[3][20])
+RF_BODY void fit_sums_body(const rf_work *w, long npad, int nch, double q[3][20])
 {
     /* the normals and their products, shared by the channels, once per block
      * of RF_JBLOCK samples; each channel's lanes add in sample order, as a
@@ -891,6 +930,8 @@ RF_CLONES static void fit_sums(const rf_work *w, long npad, int nch, double q[3]
             q[c][i] = sum;
         }
 }
+RF_VERSIONS(void, fit_sums, (const rf_work *w, long npad, int nch, double q[3][20]),
+            (w, npad, nch, q))
 
 /* A x = b for symmetric positive semi-definite A (k <= 6), with the tiny ridge
  * of training/refine.py _solve_spd; Gaussian elimination with partial pivoting. */
@@ -1054,8 +1095,8 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     w->gp[GEO_KH] = (float)(th / M_PI);
     geometry_pass(w, npad, Rf, w->gp, tw, th, tr, pairs != NULL);
     w->nact = -1;
-#ifdef RF_AVX512_PATHS
-    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw"))
+#ifdef RF_X86_GCC
+    if (rf_version() == 2)
         w->nact = gather_pass_avx512(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
                                      tr, t->scale[lev]);
     else
@@ -1247,25 +1288,33 @@ static inline __attribute__((always_inline)) void jac_sums_n(float *const *q, lo
     }
 }
 
-RF_CLONES static void jac_sums3(float *const *q, long npad, const float R[9], const float kd[3],
-                                const float gp[6], const float a[3][5], double out[RF_JSUMS])
+RF_BODY void jac_sums3_body(float *const *q, long npad, const float R[9], const float kd[3],
+                            const float gp[6], const float a[3][5], double out[RF_JSUMS])
 {
     jac_sums_n(q, npad, R, kd, gp, a, out, 3);
 }
+RF_VERSIONS(void, jac_sums3,
+            (float *const *q, long npad, const float R[9], const float kd[3], const float gp[6],
+             const float a[3][5], double out[RF_JSUMS]),
+            (q, npad, R, kd, gp, a, out))
 
 /* a gray frame: channel 0 alone (the sums of the others are the same) */
-RF_CLONES static void jac_sums1(float *const *q, long npad, const float R[9], const float kd[3],
-                                const float gp[6], const float a[3][5], double out[RF_JSUMS])
+RF_BODY void jac_sums1_body(float *const *q, long npad, const float R[9], const float kd[3],
+                            const float gp[6], const float a[3][5], double out[RF_JSUMS])
 {
     jac_sums_n(q, npad, R, kd, gp, a, out, 1);
 }
+RF_VERSIONS(void, jac_sums1,
+            (float *const *q, long npad, const float R[9], const float kd[3], const float gp[6],
+             const float a[3][5], double out[RF_JSUMS]),
+            (q, npad, R, kd, gp, a, out))
 
 /* The samples whose rendering has a gradient, copied into w->ja (padded with
  * zeros to RF_LANES); returns their count, padded. Where the texture is flat
  * over a sample's 2 x 2 texels (most of the paper's textures: bars of one
  * colour) its derivatives are exactly 0 in every channel, and so is all it
  * adds to J^T J, J^T A and J^T e: the Jacobian pass skips it. */
-RF_CLONES static long active_samples(const rf_work *w, int32_t *idx)
+RF_BODY long active_samples_body(const rf_work *w, int32_t *idx)
 {
     long m = 0;
     for (long k = 0; k < w->npad; k += RF_VL) {
@@ -1283,8 +1332,9 @@ RF_CLONES static long active_samples(const rf_work *w, int32_t *idx)
     }
     return m;
 }
+RF_VERSIONS(long, active_samples, (const rf_work *w, int32_t *idx), (w, idx))
 
-#ifdef RF_AVX512_PATHS
+#ifdef RF_X86_GCC
 /* dst[k] = src[idx[k]], k < m (idx padded to RF_LANES with valid indices) */
 __attribute__((target("avx512f"))) static void pick_avx512(float *dst, const float *src,
                                                            const int32_t *idx, long m)
@@ -1313,8 +1363,8 @@ static long jac_samples(rf_work *w)
     for (int i = 0; i < NK; i++) {
         const float *src = w->a[keep[i]];
         float *dst = w->ja[keep[i]];
-#ifdef RF_AVX512_PATHS
-        if (__builtin_cpu_supports("avx512f"))
+#ifdef RF_X86_GCC
+        if (rf_version() == 2)
             pick_avx512(dst, src, idx, mp);
         else
 #endif
@@ -1405,7 +1455,7 @@ static double off_axis_share(const double C[3][3])
 
 /* The frame's colour share over the fitted rendering's, on the pixels of the
  * last value pass (NaN when the rendering has no colour). */
-RF_CLONES static double colour_ratio(const rf_work *w, const rf_fit *fit)
+RF_BODY double colour_ratio_body(const rf_work *w, const rf_fit *fit)
 {
     /* one pass: the sums of o, m, o o^T and m m^T (double lanes), then
      * C = sum x x^T - n mean mean^T; the observed values are exact, the
@@ -1449,6 +1499,7 @@ RF_CLONES static double colour_ratio(const rf_work *w, const rf_fit *fit)
     double sm_share = off_axis_share(Cm);
     return sm_share > 0 ? off_axis_share(Co) / sm_share : NAN;
 }
+RF_VERSIONS(double, colour_ratio, (const rf_work *w, const rf_fit *fit), (w, fit))
 
 int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
               double r, const double R0[3][3], double focal_px, int steps, rf_out *out, char *err,

@@ -100,4 +100,10 @@ void rf_matrix_to_euler(const double R[3][3], double euler_deg[3]);
 /* Base64 (RFC 4648, no line breaks) to bytes: *out malloc'ed. -1 on bad text. */
 int rf_base64_decode(const char *text, unsigned char **out, size_t *len);
 
+/* Which version of the per-pixel loops runs (refine.c): 2 AVX-512, 1 AVX2,
+ * 0 the x86-64 baseline (other machines: 0). v < 0: the best the processor
+ * has (the default); else v, or the best there is when that is lower.
+ * Returns the version now in effect. For tests: not thread-safe. */
+int rf_set_version(int v);
+
 #endif
