@@ -698,8 +698,8 @@ RF_VERSIONS(void, geometry_pass,
  * texture is mostly out of the caches); the arithmetic is the loop's, lane
  * by lane. Only the values are kept for every sample: the derivatives, which
  * only the Jacobian reads, go straight to its arrays (w->ja) for the samples
- * that have one (np: samples before the padding), with their indices in
- * w->idx, as jac_samples would pick them; returns their count. */
+ * that have one (np: samples before the padding), with the values and the
+ * indices in w->idx, as jac_samples would pick them; returns their count. */
 __attribute__((target("avx512f,avx512bw"))) static long
 gather_pass_avx512(rf_work *w, long n, long np, const void *restrict tex, int pair, int tr,
                    float scale)
@@ -782,7 +782,7 @@ gather_pass_avx512(rf_work *w, long n, long np, const void *restrict tex, int pa
                         _mm512_cvtepi32_ps(_mm512_cvtepu16_epi32(_mm512_castsi512_si256(x))), sc);
                 }
         }
-        __m512 a = _mm512_load_ps(fx + k), b = _mm512_load_ps(fy + k), du[3], dv[3];
+        __m512 a = _mm512_load_ps(fx + k), b = _mm512_load_ps(fy + k), du[3], dv[3], val[3];
         __m512i any = _mm512_setzero_si512();
         for (int c = 0; c < 3; c++) {
             __m512 a00 = v[c][0], a10 = v[c][1], a01 = v[c][2], a11 = v[c][3];
@@ -791,7 +791,8 @@ gather_pass_avx512(rf_work *w, long n, long np, const void *restrict tex, int pa
             __m512 top = _mm512_fmadd_ps(a, d0, a00), bot = _mm512_fmadd_ps(a, d1, a01);
             dv[c] = _mm512_sub_ps(bot, top);
             du[c] = _mm512_fmadd_ps(b, _mm512_sub_ps(d1, d0), d0);
-            _mm512_store_ps(w->a[A_V0 + c] + k, _mm512_fmadd_ps(b, dv[c], top));
+            val[c] = _mm512_fmadd_ps(b, dv[c], top);
+            _mm512_store_ps(w->a[A_V0 + c] + k, val[c]);
             any = _mm512_or_si512(
                 any, _mm512_or_si512(_mm512_castps_si512(du[c]), _mm512_castps_si512(dv[c])));
         }
@@ -803,6 +804,7 @@ gather_pass_avx512(rf_work *w, long n, long np, const void *restrict tex, int pa
                                 _mm512_maskz_compress_epi32(
                                     act, _mm512_add_epi32(_mm512_set1_epi32((int)k), lane)));
             for (int c = 0; c < 3; c++) {
+                _mm512_storeu_ps(w->ja[A_V0 + c] + m, _mm512_maskz_compress_ps(act, val[c]));
                 _mm512_storeu_ps(w->ja[A_DU0 + c] + m, _mm512_maskz_compress_ps(act, du[c]));
                 _mm512_storeu_ps(w->ja[A_DV0 + c] + m, _mm512_maskz_compress_ps(act, dv[c]));
             }
@@ -1119,8 +1121,10 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     /* (a sample's luma derivative is nonzero where one of its channels' is:
      * the Jacobian's samples are the same whether chosen before or after) */
     luma_pass(w->a, A_V0, w->gray ? npad : 0);
-    for (int m = A_DU0; m <= A_DV0; m += 3)
-        luma_pass(w->nact < 0 ? w->a : w->ja, m, w->gray ? (w->nact < 0 ? npad : w->nact) : 0);
+    for (int m = A_V0; m <= A_DV0; m += 3) {
+        if (w->nact >= 0) luma_pass(w->ja, m, w->gray ? w->nact : 0);
+        if (w->nact < 0 && m > A_V0) luma_pass(w->a, m, w->gray ? npad : 0);
+    }
     /* the padding takes no part: no texture there */
     for (int m = A_V0; m <= (w->nact < 0 ? A_DV2 : A_V2); m++)
         for (long k = np; k < npad; k++) w->a[m][k] = 0;
@@ -1144,11 +1148,19 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     }
     /* |obs - A coef|^2 = obs.obs - 2 coef.A^T obs + coef.A^T A coef (training/refine.py
      * photometric_fit): no second pass over the pixels */
+    double qq0 = 0, xb0 = 0; /* channel 0's */
     for (int c = 0; c < 3; c++) {
         double(*M)[6] = fit->AtA[c];
         for (int i = 0; i < 5; i++)
             for (int j = 0; j < i; j++) M[i][j] = M[j][i];
         double *x = fit->coef[c];
+        if (c > 0 && !memcmp(M, fit->AtA[0], sizeof fit->AtA[0]) &&
+            !memcmp(fit->Atb[c], fit->Atb[0], sizeof fit->Atb[0])) {
+            /* a gray frame's channels: channel 0's solution */
+            memcpy(x, fit->coef[0], sizeof fit->coef[0]);
+            fit->sse += oo[c] - 2 * xb0 + qq0;
+            continue;
+        }
         solve_spd(5, M, fit->Atb[c], x);
         double qq = 0, xb = 0;
         for (int i = 0; i < 5; i++) {
@@ -1157,6 +1169,7 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
             qq += x[i] * mx;
             xb += x[i] * fit->Atb[c][i];
         }
+        if (c == 0) qq0 = qq, xb0 = xb;
         fit->sse += oo[c] - 2 * xb + qq;
     }
 }
@@ -1347,22 +1360,24 @@ __attribute__((target("avx512f"))) static void pick_avx512(float *dst, const flo
 
 static long jac_samples(rf_work *w)
 {
-    static const int keep[] = {A_O0, A_O1, A_O2, A_NX,  A_NY,  A_NZ,  A_X,   A_Y,   A_T,
-                               A_V0, A_V1, A_V2, A_DU0, A_DU1, A_DU2, A_DV0, A_DV1, A_DV2};
-    /* the lookups chose the samples and wrote their derivatives (w->nact) */
-    int picked = w->nact < 0;
+    /* the arrays the Jacobian reads: all channels', or a gray frame's
+     * channel 0 (jac_sums1); the lookups may have written the last 9 (the
+     * values and the derivatives: w->nact) */
+    static const int keep[2][18] = {{A_NX, A_NY, A_NZ, A_X, A_Y, A_T, A_O0, A_O1, A_O2, A_V0, A_V1,
+                                     A_V2, A_DU0, A_DU1, A_DU2, A_DV0, A_DV1, A_DV2},
+                                    {A_NX, A_NY, A_NZ, A_X, A_Y, A_T, A_O0, A_V0, A_DU0, A_DV0}};
+    int picked = w->nact < 0, g = w->gray != 0;
     long m = picked ? active_samples(w, w->idx) : w->nact;
     long mp = (m + RF_LANES - 1) / RF_LANES * RF_LANES;
-    int NK =
-        (int)(sizeof keep / sizeof keep[0]) - (picked ? 0 : 6); /* keep's last 6: the derivatives */
+    int NK = g ? (picked ? 10 : 7) : (picked ? 18 : 9);
     int32_t *idx = w->idx;
     for (long k = m; k < mp; k++) idx[k] = 0; /* read, then zeroed below */
     if (!picked)
-        for (int i = A_DU0; i <= A_DV2; i++)
+        for (int i = A_V0; i <= A_DV2; i++)
             for (long k = m; k < mp; k++) w->ja[i][k] = 0;
     for (int i = 0; i < NK; i++) {
-        const float *src = w->a[keep[i]];
-        float *dst = w->ja[keep[i]];
+        const float *src = w->a[keep[g][i]];
+        float *dst = w->ja[keep[g][i]];
 #ifdef RF_X86_GCC
         if (rf_version() == 2)
             pick_avx512(dst, src, idx, mp);
@@ -1413,16 +1428,25 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
     for (int i = 0; i < 6; i++) g[i] = s[111 + i];
     /* variable projection (training/refine.py _eval): take out of J^T J what
      * the refitted photometric coefficients absorb, J^T A (A^T A)^-1 A^T J */
+    double P0[6][6], Pc[6][6]; /* channel 0's and channel c's J^T A (A^T A)^-1 A^T J */
     for (int c = 0; c < 3; c++) {
-        double X[6][5], M[6][6];
-        memcpy(M, fit->AtA[c], sizeof M);
-        solve_spd_n(5, M, 6, JtA[c][0], 5, X[0], 5);
+        double(*P)[6] = c == 0 ? P0 : Pc;
+        if (c > 0 && !memcmp(fit->AtA[c], fit->AtA[0], sizeof fit->AtA[0]) &&
+            !memcmp(JtA[c], JtA[0], sizeof JtA[0]))
+            P = P0; /* a gray frame's channels: channel 0's */
+        else {
+            double X[6][5], M[6][6];
+            memcpy(M, fit->AtA[c], sizeof M);
+            solve_spd_n(5, M, 6, JtA[c][0], 5, X[0], 5);
+            for (int i = 0; i < 6; i++)
+                for (int j = i; j < 6; j++) {
+                    double qq = 0;
+                    for (int k = 0; k < 5; k++) qq += JtA[c][i][k] * X[j][k];
+                    P[i][j] = qq;
+                }
+        }
         for (int i = 0; i < 6; i++)
-            for (int j = i; j < 6; j++) {
-                double qq = 0;
-                for (int k = 0; k < 5; k++) qq += JtA[c][i][k] * X[j][k];
-                H[i][j] -= qq;
-            }
+            for (int j = i; j < 6; j++) H[i][j] -= P[i][j];
     }
     for (int i = 0; i < 6; i++)
         for (int j = 0; j < i; j++) H[i][j] = H[j][i];
