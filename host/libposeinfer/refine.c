@@ -981,6 +981,95 @@ static void solve_spd(int k, double A[6][6], const double *b, double *x)
     solve_spd_n(k, A, 1, b, 0, x, 0);
 }
 
+/* solve_spd_n for the three channels' systems at once, channel c in lane c
+ * (lane 3 repeats channel 0): each lane does channel c's operations in
+ * their order, its own pivots included (selected lane by lane), and fuses
+ * nothing, so that its bits are a lone solve's. */
+typedef double vd4 __attribute__((vector_size(4 * sizeof(double))));
+typedef int64_t vl4 __attribute__((vector_size(4 * sizeof(int64_t))));
+static inline vd4 vd4_sel(vl4 m, vd4 a, vd4 b) /* m ? a : b, m all ones or zero */
+{
+    return (vd4)(((vl4)a & m) | ((vl4)b & ~m));
+}
+RF_BODY void solve_spd_n3_body(int k, double A[3][6][6], int m, const double *const b[3], int bs,
+                               double *const x[3], int xs)
+{
+    vd4 M[6][12], tr = {0};
+    int n = k + m;
+    for (int i = 0; i < k; i++) tr += (vd4){A[0][i][i], A[1][i][i], A[2][i][i], A[0][i][i]};
+    vd4 trk = tr / k;
+    vd4 ridge = 1e-9 * vd4_sel(trk > 1.0, trk, (vd4){0} + 1.0);
+    for (int i = 0; i < k; i++) {
+        for (int j = 0; j < k; j++)
+            M[i][j] =
+                (vd4){A[0][i][j], A[1][i][j], A[2][i][j], A[0][i][j]} + (i == j ? ridge : (vd4){0});
+        for (int r = 0; r < m; r++)
+            M[i][k + r] =
+                (vd4){b[0][r * bs + i], b[1][r * bs + i], b[2][r * bs + i], b[0][r * bs + i]};
+    }
+    const vl4 nosign = (vl4){0} + INT64_MAX;
+    for (int c = 0; c < k; c++) {
+        /* lane by lane: the first row below c with the largest |M[i][c]|,
+         * swapped with row c */
+        vd4 best = (vd4)((vl4)M[c][c] & nosign);
+        vl4 p = (vl4){0} + c;
+        for (int i = c + 1; i < k; i++) {
+            vd4 v = (vd4)((vl4)M[i][c] & nosign);
+            vl4 gt = v > best;
+            best = vd4_sel(gt, v, best);
+            p = (gt & i) | (~gt & p);
+        }
+        for (int i = c + 1; i < k; i++) {
+            vl4 sw = p == i;
+            for (int j = 0; j < n; j++) {
+                vd4 t = M[c][j];
+                M[c][j] = vd4_sel(sw, M[i][j], t);
+                M[i][j] = vd4_sel(sw, t, M[i][j]);
+            }
+        }
+        vd4 d = M[c][c];
+        d = vd4_sel(d == 0, (vd4){0} + 1e-300, d);
+        for (int i = c + 1; i < k; i++) {
+            vd4 f = M[i][c] / d;
+            for (int j = c; j < n; j++) M[i][j] -= f * M[c][j];
+        }
+    }
+    for (int r = 0; r < m; r++) {
+        vd4 xr[6];
+        for (int i = k - 1; i >= 0; i--) {
+            vd4 sum = M[i][k + r];
+            for (int j = i + 1; j < k; j++) sum -= M[i][j] * xr[j];
+            xr[i] = sum / vd4_sel(M[i][i] != 0, M[i][i], (vd4){0} + 1e-300);
+        }
+        for (int i = 0; i < k; i++)
+            for (int c = 0; c < 3; c++) x[c][r * xs + i] = xr[i][c];
+    }
+}
+#ifdef RF_X86_GCC
+__attribute__((target("avx2"), optimize("fp-contract=off"))) static void
+solve_spd_n3_v1(int k, double A[3][6][6], int m, const double *const b[3], int bs,
+                double *const x[3], int xs)
+{
+    solve_spd_n3_body(k, A, m, b, bs, x, xs);
+}
+#endif
+static void solve_spd_n3(int k, double A[3][6][6], int m, const double *const b[3], int bs,
+                         double *const x[3], int xs)
+{
+#ifdef RF_X86_GCC
+    if (rf_version() >= 1) {
+        solve_spd_n3_v1(k, A, m, b, bs, x, xs);
+        return;
+    }
+#endif
+    /* (the baseline's 2-lane vectors gain nothing: one channel at a time) */
+    for (int c = 0; c < 3; c++) {
+        double M[6][6];
+        memcpy(M, A[c], sizeof M);
+        solve_spd_n(k, M, m, b[c], bs, x[c], xs);
+    }
+}
+
 /* The samples of rows j0.. and columns i0.. (stride apart) within rm of
  * (cx, cy) at level lev: centres relative to (cx, cy), observed values (a
  * level-l pixel is the mean of a 2^l x 2^l block of the frame, summed here:
@@ -1148,20 +1237,22 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     }
     /* |obs - A coef|^2 = obs.obs - 2 coef.A^T obs + coef.A^T A coef (training/refine.py
      * photometric_fit): no second pass over the pixels */
+    for (int c = 0; c < 3; c++)
+        for (int i = 0; i < 5; i++)
+            for (int j = 0; j < i; j++) fit->AtA[c][i][j] = fit->AtA[c][j][i];
+    const double *atb[3] = {fit->Atb[0], fit->Atb[1], fit->Atb[2]};
+    double *coef[3] = {fit->coef[0], fit->coef[1], fit->coef[2]};
+    solve_spd_n3(5, fit->AtA, 1, atb, 0, coef, 0);
     double qq0 = 0, xb0 = 0; /* channel 0's */
     for (int c = 0; c < 3; c++) {
         double(*M)[6] = fit->AtA[c];
-        for (int i = 0; i < 5; i++)
-            for (int j = 0; j < i; j++) M[i][j] = M[j][i];
         double *x = fit->coef[c];
         if (c > 0 && !memcmp(M, fit->AtA[0], sizeof fit->AtA[0]) &&
             !memcmp(fit->Atb[c], fit->Atb[0], sizeof fit->Atb[0])) {
-            /* a gray frame's channels: channel 0's solution */
-            memcpy(x, fit->coef[0], sizeof fit->coef[0]);
+            /* a gray frame's channels: channel 0's */
             fit->sse += oo[c] - 2 * xb0 + qq0;
             continue;
         }
-        solve_spd(5, M, fit->Atb[c], x);
         double qq = 0, xb = 0;
         for (int i = 0; i < 5; i++) {
             double mx = 0;
@@ -1428,6 +1519,11 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
     for (int i = 0; i < 6; i++) g[i] = s[111 + i];
     /* variable projection (training/refine.py _eval): take out of J^T J what
      * the refitted photometric coefficients absorb, J^T A (A^T A)^-1 A^T J */
+    double X[3][6][5], AtA[3][6][6];
+    memcpy(AtA, fit->AtA, sizeof AtA);
+    const double *jta[3] = {JtA[0][0], JtA[1][0], JtA[2][0]};
+    double *xs[3] = {X[0][0], X[1][0], X[2][0]};
+    solve_spd_n3(5, AtA, 6, jta, 5, xs, 5);
     double P0[6][6], Pc[6][6]; /* channel 0's and channel c's J^T A (A^T A)^-1 A^T J */
     for (int c = 0; c < 3; c++) {
         double(*P)[6] = c == 0 ? P0 : Pc;
@@ -1435,13 +1531,10 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
             !memcmp(JtA[c], JtA[0], sizeof JtA[0]))
             P = P0; /* a gray frame's channels: channel 0's */
         else {
-            double X[6][5], M[6][6];
-            memcpy(M, fit->AtA[c], sizeof M);
-            solve_spd_n(5, M, 6, JtA[c][0], 5, X[0], 5);
             for (int i = 0; i < 6; i++)
                 for (int j = i; j < 6; j++) {
                     double qq = 0;
-                    for (int k = 0; k < 5; k++) qq += JtA[c][i][k] * X[j][k];
+                    for (int k = 0; k < 5; k++) qq += JtA[c][i][k] * X[c][j][k];
                     P[i][j] = qq;
                 }
         }
