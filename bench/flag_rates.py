@@ -62,6 +62,7 @@ from raycast import camera as rc_camera  # noqa: E402
 from raycast import frames as rc_frames  # noqa: E402
 from realscene import machine_line, runtime_identity, sha256, wrap  # noqa: E402
 from sim.camera import from_truth  # noqa: E402
+from sim.frames import write_atomic  # noqa: E402
 from sim.names import BadName, parse_name  # noqa: E402
 
 OFF_DEG = 0.5           # a confident answer further off than this (largest axis) is counted apart
@@ -340,17 +341,27 @@ def run_poseinfer(args, inputs, camera_file, where):
 
 
 def read_truth(folder):
-    """The truth.jsonl records of a set's frames, in order."""
+    """The truth.jsonl records of a set's frames, in order. Each line must be a JSON object whose "file" is
+    a frame's bare name (poseinfer's answers are matched to it by their file's base name): SystemExit naming
+    path:line otherwise."""
     path = os.path.join(folder, "truth.jsonl")
     out = []
     try:
         with open(path, encoding="utf-8") as f:
             for k, line in enumerate(f, 1):
-                if line.strip():
-                    try:
-                        out.append(json.loads(line))
-                    except json.JSONDecodeError as e:
-                        sys.exit(f"flag_rates: {path}:{k}: not JSON ({e})")
+                if not line.strip():
+                    continue
+                try:
+                    rec = json.loads(line)
+                except json.JSONDecodeError as e:
+                    sys.exit(f"flag_rates: {path}:{k}: not JSON ({e})")
+                if not isinstance(rec, dict):
+                    sys.exit(f"flag_rates: {path}:{k}: not a JSON object")
+                name = rec.get("file")
+                if not isinstance(name, str) or not name or os.path.basename(name) != name:
+                    sys.exit(f"flag_rates: {path}:{k}: \"file\" must be a frame's file name, "
+                             f"got {name!r}")
+                out.append(rec)
     except OSError as e:
         sys.exit(f"flag_rates: {path}: cannot read: {e.strerror}")
     return out
@@ -478,12 +489,14 @@ def set_table(args, sets, out, counts):
     return "\n".join(lines)
 
 
-def write_atomic(path, text):
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-    os.replace(tmp, path)
+def write_text(path, text):
+    """Write `text` to `path` whole or not at all (sim.frames.write_atomic: a failed write leaves no
+    temporary file); SystemExit naming the path when it cannot be written."""
+    try:
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        write_atomic(path, text.encode("utf-8"))
+    except OSError as e:
+        sys.exit(f"flag_rates: {path}: cannot write: {e.strerror or e}")
 
 
 def run_stem(args):
@@ -538,7 +551,7 @@ def main(args):
     cam = rc_camera.load_camera(None)
     camera_files = {"reference": os.path.join(out, "camera.json"), "rig": os.path.join(ROOT, RIG_CAMERA),
                     "none": None}
-    write_atomic(camera_files["reference"], json.dumps(cam.to_dict()) + "\n")
+    write_text(camera_files["reference"], json.dumps(cam.to_dict()) + "\n")
     t0 = time.time()
 
     by_name = {s["name"]: s for s in sets}
@@ -575,8 +588,8 @@ def main(args):
 
     stem = run_stem(args)
     results_path = os.path.join(out, f"results_{stem}.jsonl")
-    write_atomic(results_path, "".join(json.dumps(r) + "\n" for r in all_rows))
-    write_atomic(os.path.join(out, f"summary_{stem}.json"),
+    write_text(results_path, "".join(json.dumps(r) + "\n" for r in all_rows))
+    write_text(os.path.join(out, f"summary_{stem}.json"),
                  json.dumps({"groups": gcounts, "sets": counts, "n": args.n}, indent=1) + "\n")
     table = group_table(gcounts)
     met = all(target(g, c)[1] for g, c in gcounts.items())
@@ -602,7 +615,7 @@ def main(args):
               "", "Flagged: answered with `\"confident\": false`; off: the largest of the three angle errors "
               "against the pose in the file name.", "", table, "", "## Sets", "",
               set_table(args, counted, out, counts), ""]
-        write_atomic(args.markdown, "\n".join(md))
+        write_text(args.markdown, "\n".join(md))
         print(f"markdown: {args.markdown}")
     return 3 if args.check and not met else 0
 
