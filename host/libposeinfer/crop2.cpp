@@ -32,11 +32,18 @@ namespace
 
 // Working memory, kept between frames (per thread): fresh allocations of
 // these sizes cost more in page faults than the work itself.
+// The coarse accumulator and the box maximum's rows and planes, in 16 or 32
+// bits (coarse).
+template <class T> struct Acc {
+    std::vector<T> acc, pair, h3, vmax, bmax;
+};
 struct Scratch {
     std::vector<uint8_t> red; // the reduced image: block means fit a byte
-    std::vector<int32_t> row, M, GX, GY, V, D, acc, box, hsum, vmax, bmax;
+    std::vector<int32_t> row, M, GX, GY, V, D;
     std::vector<int32_t> keep;
-    std::vector<uint16_t> acc16, box16, hsum16, vmax16, bmax16;
+    Acc<uint16_t> a16;
+    Acc<int32_t> a32;
+    bool last16 = true; // whether the last frame counted in 16 bits
 };
 thread_local Scratch scratch;
 
@@ -51,9 +58,9 @@ struct Cand {
     long votes;
 };
 
+// A fit; the i-th of find_sphere's fits keeps its support's rays in bank[i].
 struct Found {
     double cx, cy, r, support;
-    size_t slot; // its support's rays: Rays bank[slot] (find_sphere)
 };
 
 // Python's math.floor(x) for the values here (finite, well inside long).
@@ -498,6 +505,12 @@ KERN2_CLONES void box_max16(uint16_t *acc, int nb, int hs, int ws, uint16_t *pai
     box_max_t<uint16_t>(acc, nb, hs, ws, pair, h3, vmax, bmax);
 }
 
+inline void box_max(uint16_t *acc, int nb, int hs, int ws, uint16_t *pair, uint16_t *h3,
+                    uint16_t *vmax, uint16_t *bmax)
+{
+    box_max16(acc, nb, hs, ws, pair, h3, vmax, bmax);
+}
+
 // The largest of v[0 .. n), n >= 1. A loop of its own so that it vectorises.
 template <class T> inline __attribute__((always_inline)) T max_of_t(const T *v, size_t n)
 {
@@ -603,6 +616,42 @@ void peaks(T *vmax, const T *bmax, const Edges &e, const std::vector<long> &star
     }
 }
 
+// The votes of the edges e (unit gradients ux, uy) at the signed radii srs
+// (bin planes at boff) into a.acc, counted in T; then 3 x 3 box sums per bin
+// (zeros outside), each bin plus the next, per cell its best bin (first on
+// ties): the candidates from these into out (peaks). The box sum is linear:
+// it is taken once of each bin plus the next. The accumulator is left zero.
+template <class T>
+void vote_peaks(Acc<T> &a, const Edges &e, const std::vector<double> &ux,
+                const std::vector<double> &uy, const std::vector<double> &srs,
+                const std::vector<int32_t> &boff, const std::vector<long> &start, int nb, int hs,
+                int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out)
+{
+    const size_t plane = (size_t)hs * ws, nv = srs.size();
+    // the accumulator is left zero after each frame (box_max clears it)
+    if (a.acc.size() < (size_t)nb * plane + nv) a.acc.assign((size_t)nb * plane + nv, 0);
+    const size_t batch = 16; // edges per vote_cells call
+    std::vector<int32_t> cell(batch * nv);
+    // a vote outside the plane goes to one of the slots after the last bin, never read
+    const int32_t trash = (int32_t)((size_t)nb * plane);
+    T *acc = a.acc.data();
+    for (size_t i = 0; i < e.n; i += batch) {
+        const size_t m = std::min(batch, e.n - i);
+        vote_cells(srs.data(), boff.data(), (int)nv, &e.x[i], &e.y[i], &ux[i], &uy[i], m, ws, hs,
+                   trash, cell.data());
+        const size_t nc = m * nv;
+        for (size_t k = 0; k < nc; k++) acc[(size_t)cell[k]]++;
+    }
+    a.pair.resize((size_t)ws);
+    a.h3.resize(3 * (size_t)nb * ws);
+    a.vmax.resize(plane);
+    a.bmax.resize(plane);
+    box_max(acc, nb, hs, ws, a.pair.data(), a.h3.data(), a.vmax.data(), a.bmax.data());
+    // the slots of the votes outside
+    std::fill(acc + (size_t)nb * plane, acc + (size_t)nb * plane + nv, (T)0);
+    peaks(a.vmax.data(), a.bmax.data(), e, start, nb, hs, ws, s, h, w, lo, p, out);
+}
+
 // Candidate circles, strongest first; *s_out the reduction.
 std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
                          double rmin, double rmax, int *s_out)
@@ -616,16 +665,11 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     if (hs < 8 || ws < 8) return out;
     thread_local Edges e;
     e.n = 0;
-    // the accumulator of the last frame (frames of one size use the same)
-    const uint8_t *pf = nullptr;
-    size_t pf_len = 0;
-    if (!scratch.acc16.empty()) {
-        pf = (const uint8_t *)scratch.acc16.data();
-        pf_len = scratch.acc16.size() * sizeof(uint16_t);
-    } else if (!scratch.acc.empty()) {
-        pf = (const uint8_t *)scratch.acc.data();
-        pf_len = scratch.acc.size() * sizeof(int32_t);
-    }
+    // the accumulator the last frame used (frames of one size use the same)
+    const uint8_t *pf = scratch.last16 ? (const uint8_t *)scratch.a16.acc.data()
+                                       : (const uint8_t *)scratch.a32.acc.data();
+    const size_t pf_len = scratch.last16 ? scratch.a16.acc.size() * sizeof(uint16_t)
+                                         : scratch.a32.acc.size() * sizeof(int32_t);
     edges(red, hs, ws, p->edge_min, e, pf, pf_len);
     if (e.n == 0) return out;
     const long lo = std::max(1L, ifloor(rmin / s));
@@ -650,9 +694,6 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     }
     const int nb = bins.back() + 1;
     const size_t plane = (size_t)hs * ws;
-    // the accumulator is left zero after each frame (box_max clears it)
-    std::vector<int32_t> &acc = scratch.acc;
-    std::vector<uint16_t> &acc16 = scratch.acc16;
     const int nr = (int)(hi - lo + 1);
     // an edge votes once per radius and sign: a sum over two bins (a cell's
     // count, a box sum) is at most the edges times twice the radii of the
@@ -661,15 +702,9 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     for (int b = 0; b < nb; b++)
         widest = std::max(widest, (size_t)(start[(size_t)std::min(b + 2, nb)] - start[(size_t)b]));
     const bool narrow = e.n * 2 * widest < 65536;
-    if (narrow) {
-        if (acc16.size() < (size_t)nb * plane + 2 * (size_t)nr)
-            acc16.assign((size_t)nb * plane + 2 * (size_t)nr, 0);
-    } else if (acc.size() < (size_t)nb * plane + 2 * (size_t)nr) {
-        acc.assign((size_t)nb * plane + 2 * (size_t)nr, 0);
-    }
+    scratch.last16 = narrow;
     std::vector<double> srs(2 * (size_t)nr);
-    const size_t batch = 16; // edges per vote_cells call
-    std::vector<int32_t> cell(batch * 2 * (size_t)nr), boff(2 * (size_t)nr);
+    std::vector<int32_t> boff(2 * (size_t)nr);
     for (int sg = 0; sg < 2; sg++)
         for (int k = 0; k < nr; k++) {
             srs[(size_t)sg * nr + k] = (sg == 0 ? 1.0 : -1.0) * (double)(lo + k);
@@ -677,49 +712,10 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
         }
     thread_local std::vector<double> ux, uy;
     unit_gradients(e.gx.data(), e.gy.data(), e.n, ux, uy);
-    // a vote outside the plane goes to one of the slots after the last bin, never read
-    const int32_t trash = (int32_t)((size_t)nb * plane);
-    for (size_t i = 0; i < e.n; i += batch) {
-        const size_t m = std::min(batch, e.n - i);
-        vote_cells(srs.data(), boff.data(), 2 * nr, &e.x[i], &e.y[i], &ux[i], &uy[i], m, ws, hs,
-                   trash, cell.data());
-        const size_t nc = m * 2 * (size_t)nr;
-        if (narrow)
-            for (size_t k = 0; k < nc; k++) acc16[(size_t)cell[k]]++;
-        else
-            for (size_t k = 0; k < nc; k++) acc[(size_t)cell[k]]++;
-    }
-    // 3 x 3 box sums per bin (zeros outside), then each bin plus the next;
-    // per cell its best bin (first on ties). The box sum is linear: it is
-    // taken once of each bin plus the next.
-    std::vector<int32_t> &pair = scratch.box, &hsum = scratch.hsum, &vmax = scratch.vmax,
-                         &bmax = scratch.bmax;
-    if (narrow) {
-        std::vector<uint16_t> &pair16 = scratch.box16, &hsum16 = scratch.hsum16,
-                              &vmax16 = scratch.vmax16, &bmax16 = scratch.bmax16;
-        pair16.resize((size_t)ws);
-        hsum16.resize(3 * (size_t)nb * ws);
-        vmax16.resize(plane);
-        bmax16.resize(plane);
-        box_max16(acc16.data(), nb, hs, ws, pair16.data(), hsum16.data(), vmax16.data(),
-                  bmax16.data());
-        // the slots of the votes outside
-        std::fill(acc16.begin() + (long)((size_t)nb * plane),
-                  acc16.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
-    } else {
-        pair.resize((size_t)ws);
-        hsum.resize(3 * (size_t)nb * ws);
-        vmax.resize(plane);
-        bmax.resize(plane);
-        box_max(acc.data(), nb, hs, ws, pair.data(), hsum.data(), vmax.data(), bmax.data());
-        std::fill(acc.begin() + (long)((size_t)nb * plane),
-                  acc.begin() + (long)((size_t)nb * plane + 2 * (size_t)nr), 0);
-    }
     if (narrow)
-        peaks(scratch.vmax16.data(), scratch.bmax16.data(), e, start, nb, hs, ws, s, h, w, lo, p,
-              out);
+        vote_peaks(scratch.a16, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out);
     else
-        peaks(vmax.data(), bmax.data(), e, start, nb, hs, ws, s, h, w, lo, p, out);
+        vote_peaks(scratch.a32, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out);
     return out;
 }
 
@@ -1383,9 +1379,10 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
 // _grow): from the same centre with the radius fine_window_px and 2
 // fine_window_px larger, fine_passes - 1 passes each; the best supported of
 // the fit and these (the fit on ties) is kept. True when one of these is.
-// bank[fit->slot] holds the kept one's support rays, bank[spare] is free.
+// bank[slot] holds the support rays of fit (the slot-th fit) and then of the
+// kept one, bank[spare] is free.
 bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
-          std::vector<Rays> &bank, size_t spare)
+          std::vector<Rays> &bank, size_t slot, size_t spare)
 {
     bool moved = false;
     thread_local RayEdges re;
@@ -1408,8 +1405,8 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
         if (!ok) continue;
         const double sup = support(f, dirs, cx, cy, r, p, &bank[spare]);
         if (sup > fit->support) {
-            std::swap(bank[fit->slot], bank[spare]);
-            *fit = {cx, cy, r, sup, fit->slot};
+            std::swap(bank[slot], bank[spare]);
+            *fit = {cx, cy, r, sup};
             moved = true;
         }
     }
@@ -1441,7 +1438,7 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
     // at the first round and again after half the rounds
     double x = 0.0, y = 0.0, nr = r;
     bool fitted = true;
-    for (int it = 0; it < p->irls_iters && fitted; it++) {
+    for (int it = 0; it < p->irls_iters; it++) {
         res.clear();
         if (it == 0 || it == p->irls_iters / 2) {
             xs.clear();
@@ -1475,7 +1472,10 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
             residuals(xs.data(), ys.data(), xs.size(), x, y, nr, res.data());
         }
         robust_weights(res, p, ares, wts);
-        fitted = kasa(xs, ys, wts, &x, &y, &nr);
+        if (!kasa(xs, ys, wts, &x, &y, &nr)) {
+            fitted = false;
+            break;
+        }
     }
     double nx = a.cx + x, ny = a.cy + y;
     if (!fitted || !(nr > 1.0)) {
@@ -1618,8 +1618,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     thread_local std::vector<double> dirs;
     if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
     const Frame f = {bgr, stride, w, h};
-    std::vector<Found> all, fits;
-    // the fits' support rays, kept between frames; one more for grow's tries
+    std::vector<Found> all;
+    // the fits' support rays (bank[i]: all[i]'s), kept between frames; one more for grow's tries
     thread_local std::vector<Rays> bank;
     if (bank.size() < cands.size() + 1) bank.resize(cands.size() + 1);
     const double decisive = (1.0 + p->min_support) / 2.0;
@@ -1634,8 +1634,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
                       (c.cx - a.cx) * (c.cx - a.cx) + (c.cy - a.cy) * (c.cy - a.cy) < a.r * a.r);
         if (inside) continue;
         Found fo;
-        fo.slot = all.size();
-        if (fine(f, dirs, c, s, p, &fo, &bank[fo.slot])) all.push_back(fo);
+        if (fine(f, dirs, c, s, p, &fo, &bank[all.size()])) all.push_back(fo);
     }
     // the best supported fit (first on ties), when weakly supported, tried from larger circles
     if (!all.empty()) {
@@ -1643,21 +1642,23 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         for (size_t i = 1; i < all.size(); i++)
             if (all[i].support > all[ib].support) ib = i;
         // again from the circle it moved to, while that is better supported and still weak
-        while (all[ib].support < decisive && grow(f, dirs, p, &all[ib], bank, all.size())) {
+        while (all[ib].support < decisive && grow(f, dirs, p, &all[ib], bank, ib, all.size())) {
         }
     }
-    for (const Found &fo : all)
-        if (fo.support >= p->min_support && rmin * 0.9 <= fo.r && fo.r <= rmax * 1.1)
-            fits.push_back(fo);
+    // the well supported fits of a radius in range: their indexes into all
+    std::vector<size_t> fits;
+    for (size_t i = 0; i < all.size(); i++)
+        if (all[i].support >= p->min_support && rmin * 0.9 <= all[i].r && all[i].r <= rmax * 1.1)
+            fits.push_back(i);
     // the best supported circle (first on ties) is the sphere
     long ia = -1;
     for (size_t i = 0; i < fits.size(); i++)
-        if (ia < 0 || fits[i].support > fits[(size_t)ia].support) ia = (long)i;
+        if (ia < 0 || all[fits[i]].support > all[fits[(size_t)ia]].support) ia = (long)i;
     if (ia < 0) {
         pi_seterrn(err, errlen, "no sphere found in frame");
         return -1;
     }
-    const Found &a = fits[(size_t)ia];
+    const Found &a = all[fits[(size_t)ia]];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
         pi_seterrn(
@@ -1669,7 +1670,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // another well supported circle of about its size, neither centre inside
     // the other circle: a second sphere
     for (size_t i = 0; i < fits.size(); i++) {
-        const Found &b = fits[i];
+        const Found &b = all[fits[i]];
         if ((long)i == ia) continue;
         const double rr = std::max(a.r, b.r);
         if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) continue;
@@ -1682,7 +1683,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         }
     }
     // refitted through the outermost edges near it, its radius moved to the rim
-    final_circle(dirs, p, a, bank[a.slot], ocx, ocy, orad);
+    final_circle(dirs, p, a, bank[fits[(size_t)ia]], ocx, ocy, orad);
     return 0;
 }
 
