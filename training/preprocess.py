@@ -110,6 +110,13 @@ DEFAULTS_V2 = {
 
 DEFAULTS = DEFAULTS_V2
 
+# The weak fit's retries from larger circles (_grow, step 5 of docs/interfaces.md) stop after
+# this many rounds: each round that moves raises the support, so the retries end anyway, but
+# this bounds a frame's time. The 612 measurement frames take at most 3 rounds that move (4
+# tries). A constant of the algorithm, not a model parameter (a model's metadata holds every
+# parameter, with no default); host/libposeinfer/crop2.cpp has the same (grow_rounds).
+GROW_ROUNDS = 8
+
 
 class NoSphere(ValueError):
     """The frame holds nothing that looks like the sphere (or not one sphere, whole)."""
@@ -910,8 +917,11 @@ def _find_sphere_v2(frame, p, camera=None):
     if fits:
         # the best supported fit (first on ties), when weakly supported, tried from larger circles
         ib = min(range(len(fits)), key=lambda i: (-fits[i][3], i))
-        # again from the circle it moved to, while that is better supported and still weak
-        while fits[ib][3] < decisive:
+        # again from the circle it moved to, while that is better supported and still weak, at
+        # most GROW_ROUNDS tries
+        for _ in range(GROW_ROUNDS):
+            if fits[ib][3] >= decisive:
+                break
             g = _grow(frame, dirs, fits[ib], p)
             if g is fits[ib]:
                 break

@@ -1644,8 +1644,12 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         size_t ib = 0;
         for (size_t i = 1; i < all.size(); i++)
             if (all[i].support > all[ib].support) ib = i;
-        // again from the circle it moved to, while that is better supported and still weak
-        while (all[ib].support < decisive && grow(f, dirs, p, &all[ib], bank, ib, all.size())) {
+        // again from the circle it moved to, while that is better supported and still weak, at
+        // most grow_rounds tries (training/preprocess.py GROW_ROUNDS: the same number)
+        const int grow_rounds = 8;
+        for (int k = 0; k < grow_rounds && all[ib].support < decisive &&
+                        grow(f, dirs, p, &all[ib], bank, ib, all.size());
+             k++) {
         }
     }
     // the well supported fits of a radius in range: their indexes into all

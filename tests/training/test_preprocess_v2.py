@@ -3,6 +3,7 @@ textured sphere with a mounting post over clutter, vignetting, noise and JPEG
 (training/rigcomposite.py); the errors it must raise; the crop; the parameters; undistortion."""
 import json
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -120,6 +121,26 @@ def test_a_model_lacking_a_key_is_refused_naming_it(defaults):
         pp.params(None, model="m.onnx")
     with pytest.raises(ValueError, match="not a JSON object"):
         pp.params("{not json", model="m.onnx")
+
+
+def test_weak_fit_retries_are_capped(monkeypatch):
+    # every retry from larger circles moves the weak fit and raises its support, never to
+    # (1 + min_support) / 2: the retries stop after GROW_ROUNDS tries (the frame is refused)
+    tries = []
+
+    def grow(img, dirs, fit, p):
+        tries.append(fit)
+        return (fit[0], fit[1], fit[2] + 1.0, fit[3] + 0.01)
+
+    monkeypatch.setattr(pp, "_coarse", lambda frame, p, rmin, rmax: ([(320.0, 256.0, 100.0, 9)], 3))
+    monkeypatch.setattr(pp, "_fine", lambda img, dirs, cand, s, p: (320.0, 256.0, 100.0, 0.1))
+    monkeypatch.setattr(pp, "_grow", grow)
+    with pytest.raises(pp.NoSphere, match="no sphere found"):
+        pp.find_sphere(np.full((H, W, 3), 90, np.uint8))
+    assert len(tries) == pp.GROW_ROUNDS == 8
+    # the C++ twin stops after as many (host/libposeinfer/crop2.cpp)
+    src = (Path(__file__).resolve().parents[2] / "host/libposeinfer/crop2.cpp").read_text()
+    assert f"const int grow_rounds = {pp.GROW_ROUNDS};" in src
 
 
 def test_v1_still_works():
