@@ -10,6 +10,18 @@
 #include <cstdio>
 #include <cstring>
 
+// A few steps are also written with AVX-512 intrinsics (gathers and
+// compressing stores, which the compiler's vector loops do not use), taken
+// when the CPU has AVX-512F: the same operations on the same values.
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+// (GCC 12's AVX-512 header warns of its own undefined vectors: PR 105593)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#include <immintrin.h>
+#pragma GCC diagnostic pop
+#define CROP2_AVX512 1
+#endif
+
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -763,6 +775,44 @@ KERN2_CLONES void ray_gather(const uint8_t *fp, int64_t st, double cx, double cy
     }
 }
 
+#ifdef CROP2_AVX512
+// ray_gather with AVX-512's gather instructions (the compiler's vector loop
+// reads the corners one by one): the same operations per sample, the same
+// bytes. st below 2^31 (the row offset is a 32 x 32-bit product).
+__attribute__((target("avx512f"))) void
+ray_gather512(const uint8_t *fp, int64_t st, double cx, double cy, double ux, double uy,
+              const double *rho, size_t ns, double *__restrict fx, double *__restrict fy,
+              uint64_t *__restrict wa, uint64_t *__restrict wb)
+{
+    const __m512d vcx = _mm512_set1_pd(cx), vcy = _mm512_set1_pd(cy), vux = _mm512_set1_pd(ux),
+                  vuy = _mm512_set1_pd(uy);
+    const __m512i vst = _mm512_set1_epi64(st), vlow = _mm512_set1_epi64(st - 2);
+    size_t j = 0;
+    for (; j + 8 <= ns; j += 8) {
+        const __m512d r = _mm512_loadu_pd(rho + j);
+        const __m512d X = _mm512_add_pd(vcx, _mm512_mul_pd(r, vux));
+        const __m512d Y = _mm512_add_pd(vcy, _mm512_mul_pd(r, vuy));
+        const __m256i x0 = _mm512_cvttpd_epi32(X), y0 = _mm512_cvttpd_epi32(Y);
+        _mm512_storeu_pd(fx + j, _mm512_sub_pd(X, _mm512_cvtepi32_pd(x0)));
+        _mm512_storeu_pd(fy + j, _mm512_sub_pd(Y, _mm512_cvtepi32_pd(y0)));
+        const __m512i x64 = _mm512_cvtepi32_epi64(x0), y64 = _mm512_cvtepi32_epi64(y0);
+        const __m512i off = _mm512_add_epi64(_mm512_mul_epi32(y64, vst),
+                                             _mm512_add_epi64(x64, _mm512_add_epi64(x64, x64)));
+        _mm512_storeu_si512(wa + j, _mm512_i64gather_epi64(off, fp, 1));
+        _mm512_storeu_si512(wb + j, _mm512_i64gather_epi64(_mm512_add_epi64(off, vlow), fp, 1));
+    }
+    for (; j < ns; j++) {
+        const double X = cx + rho[j] * ux, Y = cy + rho[j] * uy;
+        const int32_t x0 = (int32_t)X, y0 = (int32_t)Y;
+        fx[j] = X - (double)x0;
+        fy[j] = Y - (double)y0;
+        const uint8_t *a = fp + ((int64_t)y0 * st + 3 * (int64_t)x0);
+        std::memcpy(&wa[j], a, 8);
+        std::memcpy(&wb[j], a + st - 2, 8);
+    }
+}
+#endif
+
 // Bilinear interpolation of the three channels (preprocess.py _sample's
 // operations and order) from ray_gather's words; v planar (channel c at v[c
 // ns]). The bytes become doubles through their bits (no conversion
@@ -855,8 +905,15 @@ struct RayScores {
         const double r0 = rho[0], r1 = rho[ns - 1];
         if (!inside(f, cx + r0 * ux, cy + r0 * uy) || !inside(f, cx + r1 * ux, cy + r1 * uy))
             return false;
-        ray_gather(f.p, (int64_t)f.stride, cx, cy, ux, uy, rho.data(), ns, FX.data(), FY.data(),
-                   WA.data(), WB.data());
+#ifdef CROP2_AVX512
+        static const bool g512 = __builtin_cpu_supports("avx512f");
+        if (g512 && f.stride < ((size_t)1 << 31))
+            ray_gather512(f.p, (int64_t)f.stride, cx, cy, ux, uy, rho.data(), ns, FX.data(),
+                          FY.data(), WA.data(), WB.data());
+        else
+#endif
+            ray_gather(f.p, (int64_t)f.stride, cx, cy, ux, uy, rho.data(), ns, FX.data(), FY.data(),
+                       WA.data(), WB.data());
         bilinear3(WA.data(), WB.data(), FX.data(), FY.data(), ns, v.data());
         step_score(v.data(), ns, score.data());
         return true;
