@@ -865,6 +865,39 @@ KERN2_CLONES void step_score(const double *v, size_t ns, double *score)
     }
 }
 
+#ifdef CROP2_AVX512
+// The local maxima of at least thr among score[1 .. n - 2] (see peak_flags)
+// with AVX-512: each 16 scores' tests as one mask, the indexes of those
+// passing stored in order by one compress; their count returned.
+__attribute__((target("avx512f"))) long peaks512(const double *score, long n, double thr,
+                                                 int32_t *pk)
+{
+    const __m512d vt = _mm512_set1_pd(thr);
+    const __m512i step = _mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
+    long m = 0, i = 1;
+    for (; i + 16 <= n - 1; i += 16) {
+        __mmask16 k = 0;
+        for (int h = 0; h < 2; h++) {
+            const double *q = score + i + 8 * h;
+            const __m512d c = _mm512_loadu_pd(q);
+            const __mmask8 kh = _mm512_cmp_pd_mask(c, vt, _CMP_GE_OQ) &
+                                _mm512_cmp_pd_mask(c, _mm512_loadu_pd(q - 1), _CMP_GE_OQ) &
+                                _mm512_cmp_pd_mask(c, _mm512_loadu_pd(q + 1), _CMP_GT_OQ);
+            k = (__mmask16)(k | ((unsigned)kh << (8 * h)));
+        }
+        _mm512_mask_compressstoreu_epi32(pk + m, k,
+                                         _mm512_add_epi32(_mm512_set1_epi32((int)i), step));
+        m += __builtin_popcount((unsigned)k);
+    }
+    for (; i < n - 1; i++) {
+        const double c = score[i];
+        pk[m] = (int32_t)i;
+        m += (c >= thr) & (c >= score[i - 1]) & (c > score[i + 1]);
+    }
+    return m;
+}
+#endif
+
 // Edge candidates per ray (see preprocess.py _ray_edges): ok[k] false for a
 // ray that leaves the frame; cands of ray k in cand[off[k] .. off[k + 1]).
 struct RayEdges {
@@ -922,8 +955,12 @@ struct RayScores {
     // their indexes into pk[0 .. return value)
     long peaks(double thr)
     {
-        pf.resize((size_t)n);
         pk.resize((size_t)n);
+#ifdef CROP2_AVX512
+        static const bool p512 = __builtin_cpu_supports("avx512f");
+        if (p512) return peaks512(score.data(), n, thr, pk.data());
+#endif
+        pf.resize((size_t)n);
         peak_flags(score.data(), n, thr, pf.data());
         long m = 0;
         for (long i = 1; i < n - 1; i++) {
