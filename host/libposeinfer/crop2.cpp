@@ -1288,6 +1288,24 @@ KERN2_CLONES void bin_bounds(const double *rho, const double *ux, const double *
     }
 }
 
+// The bins 0 .. top candidate i counts in over a block (its ray once per
+// bin): klo[i] .. khi[i], none when klo[i] > khi[i]; from its bounds lo[i]
+// .. hi[i] (bin_bounds), less those of the ray's earlier candidates. A ray's
+// bounds never decrease along it (its candidates come in increasing rho), so
+// the last bin its earlier candidates count in is the previous one's
+// min(hi, top) (when that one counts in none, its bins are the earlier
+// ones' already, or lie below 0, or above top as all later ones' do). A loop
+// of its own so that it vectorises.
+KERN2_CLONES void block_bins(const int32_t *lo, const int32_t *hi, const int32_t *first, size_t n,
+                             int32_t top, int32_t *__restrict klo, int32_t *__restrict khi)
+{
+    for (size_t i = 0; i < n; i++) {
+        const int32_t after = (i == 0 || first[i]) ? 0 : std::min(hi[i - 1], top) + 1;
+        klo[i] = std::max(std::max(lo[i], 0), after);
+        khi[i] = std::min(hi[i], top);
+    }
+}
+
 // The (shift, radius) most rays agree on (preprocess.py _consensus): for
 // each shift on the grid, the radius bin of each candidate, then the bin
 // reached by the most rays (a ray counts once per bin: on a busy backdrop a
@@ -1336,12 +1354,14 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     // reaching the best, so the (first in grid order, then bin order) winner
     // is the same as counting every shift.
     const long CB = 3, NBk = (G + CB - 1) / CB;
-    thread_local std::vector<int32_t> diff, blo, bhi;
+    thread_local std::vector<int32_t> diff, blo, bhi, klo, khi;
     thread_local std::vector<double> hw;
     thread_local std::vector<std::pair<long, long>> blocks;
     diff.resize(hn + 1);
     blo.resize(n);
     bhi.resize(n);
+    klo.resize(n);
+    khi.resize(n);
     hw.resize(n);
     blocks.clear();
     const double rel = 1.0 / step, half = (double)(CB - 1) / 2.0;
@@ -1355,15 +1375,13 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
             bin_bounds(rho.data(), ux.data(), uy.data(), hw.data(), n, DX, DY, base, rel,
                        blo.data(), bhi.data());
             std::fill(diff.begin(), diff.end(), 0);
-            int32_t prev = -1;
-            const int32_t top = (int32_t)nb - 1;
+            block_bins(blo.data(), bhi.data(), first.data(), n, (int32_t)nb - 1, klo.data(),
+                       khi.data());
             for (size_t i = 0; i < n; i++) {
-                if (first[i]) prev = -1;
-                const int32_t lo = std::max(blo[i], prev + 1), hi = std::min(bhi[i], top);
+                const int32_t lo = klo[i], hi = khi[i];
                 if (lo > hi) continue;
                 diff[(size_t)lo]++;
                 diff[(size_t)hi + 1]--;
-                prev = hi;
             }
             long run = 0, ub = 0;
             for (long b = 0; b < nb; b++) {
