@@ -111,8 +111,9 @@ int rf_set_version(int v)
  * o & 3 and J & 1 is bit 2 of o (tr is a multiple of 8). */
 #define RF_TILE_DX(o)         (1 + ((((o)&3) + 1) & 4))
 #define RF_TILE_DY(o, tr)     ((o)&4 ? (tr)-4 : 4)
-/* A level whose values fit in 10 bits (the finest level of textures up to
- * 2048 wide) is stored as pairs instead: entry (I, J) holds texels (I, J)
+/* A level whose values fit in 10 bits (any level at most one 2 x 2 reduction
+ * from the given texture: level 0 of one 2048 wide, levels 0 and 1 of one
+ * 1024 wide) is stored as pairs instead: entry (I, J) holds texels (I, J)
  * and (I + 1, J), 10 bits a channel (B | G << 10 | R << 20, the right texel
  * in the upper 32 bits), so that a bilinear lookup reads two entries, (I, J)
  * and (I, J + 1). The entries lie in columns of 8 rows, one 64-byte cache
@@ -124,7 +125,7 @@ int rf_set_version(int v)
 
 struct rf_texture {
     int w[RF_LEVELS], h[RF_LEVELS];
-    int tr[RF_LEVELS]; /* texels a row of tiles */
+    int tr[RF_LEVELS]; /* texels a row of tiles, or entries a band for pairs */
     /* 16-bit B, G, R, 0 texels (8 bytes a texel: one 64-bit load; a third
      * less memory than three floats), in tiles (above) of the level's
      * [h + 2][w + 2] texels; a texel's value is px * scale. A level's values are
@@ -641,9 +642,10 @@ static inline __attribute__((always_inline)) void body_xz(const float R[9], vf n
  * half): texel offset, bilinear weights. gp (GEO_*): the circle's centre
  * minus the arrays' origin, 1 / f, camera to centre (unit sphere), texels a
  * radian along u and along v; tw, th: the texture level's size, tr its
- * texels a row of tiles (pair: entries a band of the pairs' layout). The ray and d (u, v) / d b, which only the Jacobian
- * reads, are not kept: jac_sums_n computes them again for its few samples
- * (writing them for every sample cost more). */
+ * texels a row of tiles (pair: entries a band of the pairs' layout). The
+ * ray and d (u, v) / d b, which only the Jacobian reads, are not kept:
+ * jac_sums_n computes them again for its few samples (writing them for
+ * every sample cost more). */
 enum { GEO_DCX, GEO_DCY, GEO_INVF, GEO_DIST, GEO_KW, GEO_KH };
 RF_BODY void geometry_pass_body(rf_work *w, long n, const float R[9], const float gp[6], int tw,
                                 int th, int tr, int pair)
@@ -830,23 +832,23 @@ static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex,
                     *restrict ee[3] = {e0, e1, e2};
     for (int c = 0; c < 3; c++) {
         float *restrict val = vv[c], *restrict du = uu[c], *restrict dv = ee[c];
-        for (long k = 0; k < n && pairs; k++) {
+        for (long k = 0; k < n; k++) {
             int32_t o = off[k];
-            uint64_t p0 = pairs[o] >> 10 * c, p1 = pairs[o + RF_PAIR_DY(o, tr)] >> 10 * c;
-            float a00 = (float)(p0 & 0x3ff) * scale, a10 = (float)(p0 >> 32 & 0x3ff) * scale,
-                  a01 = (float)(p1 & 0x3ff) * scale, a11 = (float)(p1 >> 32 & 0x3ff) * scale;
-            float a = fx[k], b = fy[k];
-            float top = a00 + a * (a10 - a00), bot = a01 + a * (a11 - a01);
-            val[k] = top + b * (bot - top);
-            du[k] = (a10 - a00) + b * ((a11 - a01) - (a10 - a00));
-            dv[k] = bot - top;
-        }
-        for (long k = 0; k < n && !pairs; k++) {
-            int32_t o = off[k];
-            long dx = (long)RF_TILE_DX(o) * 4, dy = (long)RF_TILE_DY(o, tr) * 4;
-            const uint16_t *p = tex + (long)o * 4 + c;
-            float a00 = p[0] * scale, a10 = p[dx] * scale, a01 = p[dy] * scale,
-                  a11 = p[dy + dx] * scale;
+            float a00, a10, a01, a11;
+            if (pairs) {
+                uint64_t p0 = pairs[o] >> 10 * c, p1 = pairs[o + RF_PAIR_DY(o, tr)] >> 10 * c;
+                a00 = (float)(p0 & 0x3ff) * scale;
+                a10 = (float)(p0 >> 32 & 0x3ff) * scale;
+                a01 = (float)(p1 & 0x3ff) * scale;
+                a11 = (float)(p1 >> 32 & 0x3ff) * scale;
+            } else {
+                long dx = (long)RF_TILE_DX(o) * 4, dy = (long)RF_TILE_DY(o, tr) * 4;
+                const uint16_t *p = tex + (long)o * 4 + c;
+                a00 = p[0] * scale;
+                a10 = p[dx] * scale;
+                a01 = p[dy] * scale;
+                a11 = p[dy + dx] * scale;
+            }
             float a = fx[k], b = fy[k];
             float top = a00 + a * (a10 - a00), bot = a01 + a * (a11 - a01);
             val[k] = top + b * (bot - top);
@@ -937,7 +939,8 @@ RF_VERSIONS(void, fit_sums, (const rf_work *w, long npad, int nch, double q[3][2
 
 /* A x = b for symmetric positive semi-definite A (k <= 6), with the tiny ridge
  * of training/refine.py _solve_spd; Gaussian elimination with partial pivoting. */
-static void solve_spd_n(int k, double A[6][6], int m, const double *b, int bs, double *x, int xs)
+static void solve_spd_n(int k, const double A[6][6], int m, const double *b, int bs, double *x,
+                        int xs)
 {
     /* m right-hand sides b + r bs, solutions x + r xs (r < m <= 6): one
      * elimination, each column as a lone solve would treat it */
@@ -976,11 +979,12 @@ static void solve_spd_n(int k, double A[6][6], int m, const double *b, int bs, d
     }
 }
 
-static void solve_spd(int k, double A[6][6], const double *b, double *x)
+static void solve_spd(int k, const double A[6][6], const double *b, double *x)
 {
     solve_spd_n(k, A, 1, b, 0, x, 0);
 }
 
+#ifdef RF_X86_GCC
 /* solve_spd_n for the three channels' systems at once, channel c in lane c
  * (lane 3 repeats channel 0): each lane does channel c's operations in
  * their order, its own pivots included (selected lane by lane), and fuses
@@ -991,8 +995,8 @@ static inline vd4 vd4_sel(vl4 m, vd4 a, vd4 b) /* m ? a : b, m all ones or zero 
 {
     return (vd4)(((vl4)a & m) | ((vl4)b & ~m));
 }
-RF_BODY void solve_spd_n3_body(int k, double A[3][6][6], int m, const double *const b[3], int bs,
-                               double *const x[3], int xs)
+RF_BODY void solve_spd_n3_body(int k, const double A[3][6][6], int m, const double *const b[3],
+                               int bs, double *const x[3], int xs)
 {
     vd4 M[6][12], tr = {0};
     int n = k + m;
@@ -1045,15 +1049,14 @@ RF_BODY void solve_spd_n3_body(int k, double A[3][6][6], int m, const double *co
             for (int c = 0; c < 3; c++) x[c][r * xs + i] = xr[i][c];
     }
 }
-#ifdef RF_X86_GCC
 __attribute__((target("avx2"), optimize("fp-contract=off"))) static void
-solve_spd_n3_v1(int k, double A[3][6][6], int m, const double *const b[3], int bs,
+solve_spd_n3_v1(int k, const double A[3][6][6], int m, const double *const b[3], int bs,
                 double *const x[3], int xs)
 {
     solve_spd_n3_body(k, A, m, b, bs, x, xs);
 }
 #endif
-static void solve_spd_n3(int k, double A[3][6][6], int m, const double *const b[3], int bs,
+static void solve_spd_n3(int k, const double A[3][6][6], int m, const double *const b[3], int bs,
                          double *const x[3], int xs)
 {
 #ifdef RF_X86_GCC
@@ -1063,11 +1066,7 @@ static void solve_spd_n3(int k, double A[3][6][6], int m, const double *const b[
     }
 #endif
     /* (the baseline's 2-lane vectors gain nothing: one channel at a time) */
-    for (int c = 0; c < 3; c++) {
-        double M[6][6];
-        memcpy(M, A[c], sizeof M);
-        solve_spd_n(k, M, m, b[c], bs, x[c], xs);
-    }
+    for (int c = 0; c < 3; c++) solve_spd_n(k, A[c], m, b[c], bs, x[c], xs);
 }
 
 /* The samples of rows j0.. and columns i0.. (stride apart) within rm of
@@ -1164,6 +1163,16 @@ static long pixel_set(rf_work *w, int lev, double cx, double cy, double r, int s
     return n;
 }
 
+/* Channel c > 0's photometric system is channel 0's: its A^T A, and its
+ * right-hand sides, rhs + c * size (size bytes a channel), are the same bits
+ * (a gray frame's channels), and so is what follows from them. */
+static int same_as_channel0(const rf_fit *fit, int c, const void *rhs, size_t size)
+{
+    const char *r = rhs;
+    return c > 0 && !memcmp(fit->AtA[c], fit->AtA[0], sizeof fit->AtA[0]) &&
+           !memcmp(r + c * size, r, size);
+}
+
 /* The value pass of an evaluation at (R, cx, cy, r) (the level's
  * coordinates): renders the texture at the sampled pixels (kept in the
  * arrays for the Jacobian pass) and fits the photometric model; fit->sse is
@@ -1207,12 +1216,21 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
         }
         gather_pass(w, npad, tex, pairs, tr, t->scale[lev]);
     }
-    /* (a sample's luma derivative is nonzero where one of its channels' is:
-     * the Jacobian's samples are the same whether chosen before or after) */
-    luma_pass(w->a, A_V0, w->gray ? npad : 0);
-    for (int m = A_V0; m <= A_DV0; m += 3) {
-        if (w->nact >= 0) luma_pass(w->ja, m, w->gray ? w->nact : 0);
-        if (w->nact < 0 && m > A_V0) luma_pass(w->a, m, w->gray ? npad : 0);
+    if (w->gray) {
+        luma_pass(w->a, A_V0, npad); /* the fit's values */
+        if (w->nact >= 0) {
+            /* the Jacobian's samples, which the lookups chose and wrote */
+            for (int m = A_V0; m <= A_DV0; m += 3) luma_pass(w->ja, m, w->nact);
+        } else {
+            /* the derivatives, from which jac_samples picks the Jacobian's
+             * samples afterwards (active_samples): the samples the AVX-512
+             * lookups choose before this pass, since active_samples also
+             * reads channels 1 and 2, which this pass leaves alone (and
+             * channel 0's luma derivative is nonzero where its own was and
+             * the others' are 0) */
+            luma_pass(w->a, A_DU0, npad);
+            luma_pass(w->a, A_DV0, npad);
+        }
     }
     /* the padding takes no part: no texture there */
     for (int m = A_V0; m <= (w->nact < 0 ? A_DV2 : A_V2); m++)
@@ -1247,9 +1265,7 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     for (int c = 0; c < 3; c++) {
         double(*M)[6] = fit->AtA[c];
         double *x = fit->coef[c];
-        if (c > 0 && !memcmp(M, fit->AtA[0], sizeof fit->AtA[0]) &&
-            !memcmp(fit->Atb[c], fit->Atb[0], sizeof fit->Atb[0])) {
-            /* a gray frame's channels: channel 0's */
+        if (same_as_channel0(fit, c, fit->Atb, sizeof fit->Atb[0])) {
             fit->sse += oo[c] - 2 * xb0 + qq0;
             continue;
         }
@@ -1452,15 +1468,17 @@ __attribute__((target("avx512f"))) static void pick_avx512(float *dst, const flo
 static long jac_samples(rf_work *w)
 {
     /* the arrays the Jacobian reads: all channels', or a gray frame's
-     * channel 0 (jac_sums1); the lookups may have written the last 9 (the
-     * values and the derivatives: w->nact) */
+     * channel 0 (jac_sums1): the geometry's 6, then each channel's observed
+     * value, then each channel's value and derivatives, which the lookups
+     * may have written (w->nact) */
+    enum { KEEP_GEO = 6 };
     static const int keep[2][18] = {{A_NX, A_NY, A_NZ, A_X, A_Y, A_T, A_O0, A_O1, A_O2, A_V0, A_V1,
                                      A_V2, A_DU0, A_DU1, A_DU2, A_DV0, A_DV1, A_DV2},
                                     {A_NX, A_NY, A_NZ, A_X, A_Y, A_T, A_O0, A_V0, A_DU0, A_DV0}};
-    int picked = w->nact < 0, g = w->gray != 0;
+    int picked = w->nact < 0, g = w->gray != 0, nch = g ? 1 : 3;
     long m = picked ? active_samples(w, w->idx) : w->nact;
     long mp = (m + RF_LANES - 1) / RF_LANES * RF_LANES;
-    int NK = g ? (picked ? 10 : 7) : (picked ? 18 : 9);
+    int NK = KEEP_GEO + nch + (picked ? 3 * nch : 0);
     int32_t *idx = w->idx;
     for (long k = m; k < mp; k++) idx[k] = 0; /* read, then zeroed below */
     if (!picked)
@@ -1502,7 +1520,8 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
     long nj = jac_samples(w);
     if (w->gray) {
         jac_sums1(w->ja, nj, Rf, kd, w->gp, a, s);
-        /* the three equal channels: J^T J and J^T e three times channel 0's, J^T A the same for each */
+        /* the three equal channels: J^T J and J^T e three times channel 0's,
+         * J^T A the same for each */
         for (int i = 0; i < 21; i++) s[i] *= 3;
         for (int i = 0; i < 6; i++) s[111 + i] *= 3;
         memcpy(s + 51, s + 21, 30 * sizeof s[0]);
@@ -1519,17 +1538,15 @@ static void jacobian(rf_work *w, const double R[3][3], double r, double fixed_f,
     for (int i = 0; i < 6; i++) g[i] = s[111 + i];
     /* variable projection (training/refine.py _eval): take out of J^T J what
      * the refitted photometric coefficients absorb, J^T A (A^T A)^-1 A^T J */
-    double X[3][6][5], AtA[3][6][6];
-    memcpy(AtA, fit->AtA, sizeof AtA);
+    double X[3][6][5];
     const double *jta[3] = {JtA[0][0], JtA[1][0], JtA[2][0]};
     double *xs[3] = {X[0][0], X[1][0], X[2][0]};
-    solve_spd_n3(5, AtA, 6, jta, 5, xs, 5);
+    solve_spd_n3(5, fit->AtA, 6, jta, 5, xs, 5);
     double P0[6][6], Pc[6][6]; /* channel 0's and channel c's J^T A (A^T A)^-1 A^T J */
     for (int c = 0; c < 3; c++) {
         double(*P)[6] = c == 0 ? P0 : Pc;
-        if (c > 0 && !memcmp(fit->AtA[c], fit->AtA[0], sizeof fit->AtA[0]) &&
-            !memcmp(JtA[c], JtA[0], sizeof JtA[0]))
-            P = P0; /* a gray frame's channels: channel 0's */
+        if (same_as_channel0(fit, c, JtA, sizeof JtA[0]))
+            P = P0;
         else {
             for (int i = 0; i < 6; i++)
                 for (int j = i; j < 6; j++) {
