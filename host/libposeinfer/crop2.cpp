@@ -12,7 +12,8 @@
 
 // A few steps are also written with AVX-512 intrinsics (gathers and
 // compressing stores, which the compiler's vector loops do not use), taken
-// when the CPU has AVX-512F: the same operations on the same values.
+// when the CPU has AVX-512F (or as set_avx512 says: tests run both): the
+// same operations on the same values.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 // (GCC 12's AVX-512 header warns of its own undefined vectors: PR 105593)
 #pragma GCC diagnostic push
@@ -44,6 +45,19 @@ namespace crop2
 
 namespace
 {
+
+int avx512_forced = -1; // set_avx512
+
+// whether the steps written with AVX-512 intrinsics run (set_avx512)
+inline bool avx512()
+{
+#ifdef CROP2_AVX512
+    if (avx512_forced >= 0) return avx512_forced != 0;
+    return __builtin_cpu_supports("avx512f");
+#else
+    return false;
+#endif
+}
 
 // Working memory, kept between frames (per thread): fresh allocations of
 // these sizes cost more in page faults than the work itself.
@@ -389,8 +403,7 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
     auto row_edges = [&](int i) {
         const int32_t *gxr = &GX[(size_t)(i % 2) * gw], *gyr = &GY[(size_t)(i % 2) * gw];
 #ifdef CROP2_AVX512
-        static const bool e512 = __builtin_cpu_supports("avx512f");
-        if (e512) {
+        if (avx512()) {
             ne += edges_row512(mrow(i) + 1, mrow(i + 1) + 1, mrow(i + 2) + 1, gxr, gyr, gw, tmin,
                                i + 1, &e.x[ne], &e.y[ne], &e.gx[ne], &e.gy[ne]);
             return;
@@ -1011,8 +1024,7 @@ struct RayScores {
         if (!inside(f, cx + r0 * ux, cy + r0 * uy) || !inside(f, cx + r1 * ux, cy + r1 * uy))
             return false;
 #ifdef CROP2_AVX512
-        static const bool g512 = __builtin_cpu_supports("avx512f");
-        if (g512 && f.stride < ((size_t)1 << 31))
+        if (avx512() && f.stride < ((size_t)1 << 31))
             ray_gather512(f.p, (int64_t)f.stride, cx, cy, ux, uy, rho.data(), ns, FX.data(),
                           FY.data(), WA.data(), WB.data());
         else
@@ -1029,8 +1041,7 @@ struct RayScores {
     {
         pk.resize((size_t)n);
 #ifdef CROP2_AVX512
-        static const bool p512 = __builtin_cpu_supports("avx512f");
-        if (p512) return peaks512(score.data(), n, thr, pk.data());
+        if (avx512()) return peaks512(score.data(), n, thr, pk.data());
 #endif
         pf.resize((size_t)n);
         peak_flags(score.data(), n, thr, pf.data());
@@ -1725,6 +1736,14 @@ double rim_outside(double cx, double cy, double r, int h, int w)
 }
 
 } // namespace
+
+int set_avx512(int on)
+{
+    avx512_forced = -1;
+    const bool has = avx512();
+    avx512_forced = on < 0 ? -1 : (on != 0 && has);
+    return avx512();
+}
 
 std::vector<double> ray_dirs(int k)
 {

@@ -49,6 +49,12 @@ void remap(const uint8_t *bgr, size_t stride, const UndistortMap &m, uint8_t *ou
 // the unit tests: k unit vectors at angles 2 pi i / k (k a multiple of 8).
 std::vector<double> ray_dirs(int k);
 
+// Whether the steps written with AVX-512 intrinsics (crop2.cpp) run, or their
+// portable versions: on < 0, when the processor has AVX-512F (the default);
+// 0, never; else when the processor has it. Returns whether they run now.
+// For tests (both must give the same bits): not thread-safe.
+int set_avx512(int on);
+
 } // namespace crop2
 
 #endif

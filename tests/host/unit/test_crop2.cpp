@@ -1,8 +1,8 @@
 // Unit tests: sphere-crop-v2 in C++ (host/libposeinfer/crop2.cpp, pp_v2.c) on
 // synthetic frames drawn with OpenCV: the circle with a post and clutter,
 // the errors, the crop's mask, the undistortion map, the parameter and
-// camera-file checks. (Bit-identity with the Python reference is
-// tests/host/test_parity.py's.)
+// camera-file checks, the AVX-512 steps against their portable versions.
+// (Bit-identity with the Python reference is tests/host/test_parity.py's.)
 #include <cmath>
 #include <csetjmp>
 #include <cstdarg>
@@ -118,6 +118,87 @@ static void circle_with_post_and_clutter(void **state)
         assert_true(std::fabs(r - (c[2] + 0.5)) <
                     0.3); // cv::circle's anti-aliased edge lies at r + 0.5
     }
+}
+
+// The steps written with AVX-512 intrinsics (crop2.cpp) and their portable
+// versions, which a processor without AVX-512 runs, give the same answers:
+// every circle to the bit, every error the same text. Frames of several
+// sizes (widths not a multiple of 16, a stride wider than the row), with a
+// post, clutter, noise, a faint rim, and the three errors.
+static void avx512_and_portable_agree(void **state)
+{
+    (void)state;
+    const pp_params p = v2();
+    if (!crop2::set_avx512(1)) {
+        crop2::set_avx512(-1);
+        skip(); // only the portable versions here: the other tests run them
+    }
+    std::mt19937 rng(5);
+    std::vector<cv::Mat> frames;
+    // {width, height, cx, cy, r, post angle (deg; < 0 none), noise sd, rim contrast}
+    const double cases[][8] = {
+        {640, 512, 320.25, 250.5, 120.0, 90, 0, 1},
+        {517, 389, 260.5, 190.25, 95.0, 30, 6, 1},
+        {800, 600, 410.75, 300.5, 150.0, 200, 0, 1},
+        {1280, 1024, 655.5, 500.0, 260.0, 300, 10, 1},
+        {1023, 767, 500.0, 383.5, 180.0, -1, 25, 1},
+        {640, 512, 300.0, 260.0, 110.0, 135, 4, 0.25},
+        {733, 541, 380.25, 270.75, 130.5, 45, 14, 0.5},
+        {640, 480, 160.0, 240.0, 100.0, 270, 3, 1},
+    };
+    for (const auto &c : cases) {
+        const int w = (int)c[0], h = (int)c[1];
+        cv::Mat m = clutter(rng, w, h);
+        if (c[5] >= 0) {
+            const double a = c[5] * M_PI / 180;
+            cv::line(
+                m, cv::Point((int)c[2], (int)c[3]),
+                cv::Point((int)(c[2] + 2 * w * std::cos(a)), (int)(c[3] + 2 * w * std::sin(a))),
+                cv::Scalar(40, 45, 50), (int)(c[4] * 0.4), cv::LINE_AA);
+        }
+        cv::Mat d = m.clone();
+        disc(d, c[2], c[3], c[4], rng);
+        cv::addWeighted(d, c[7], m, 1 - c[7], 0, m); // a faint rim: the disc blended in
+        if (c[6] > 0) {
+            cv::Mat n(h, w, CV_16SC3);
+            cv::randn(n, 0, c[6]);
+            cv::Mat s16;
+            m.convertTo(s16, CV_16SC3);
+            s16 += n;
+            s16.convertTo(m, CV_8UC3); // saturated
+        }
+        frames.push_back(m);
+    }
+    // a stride wider than the row: the frame inside a larger one
+    cv::Mat big = clutter(rng, 700, 540);
+    disc(big, 380, 270, 115, rng);
+    frames.push_back(big(cv::Rect(37, 11, 611, 497)));
+    // the errors: none, two, cut
+    frames.push_back(cv::Mat(512, 640, CV_8UC3, cv::Scalar(90, 90, 90)));
+    cv::Mat two = clutter(rng, 640, 512);
+    disc(two, 170, 250, 100, rng);
+    disc(two, 470, 260, 104, rng);
+    frames.push_back(two);
+    cv::Mat cut = clutter(rng, 640, 512);
+    disc(cut, 639 - 120 * std::cos(M_PI / 4), 250, 120, rng);
+    frames.push_back(cut);
+    int found = 0;
+    for (size_t i = 0; i < frames.size(); i++) {
+        double a[3], b[3];
+        std::string why_a, why_b;
+        crop2::set_avx512(1);
+        const int rc_a = find(frames[i], &p, &a[0], &a[1], &a[2], &why_a);
+        crop2::set_avx512(0);
+        const int rc_b = find(frames[i], &p, &b[0], &b[1], &b[2], &why_b);
+        crop2::set_avx512(-1);
+        if (rc_a != rc_b || (rc_a == 0 && memcmp(a, b, sizeof a) != 0) || why_a != why_b)
+            fail_msg("frame %zu: AVX-512 %d (%.17g, %.17g, %.17g) \"%s\", portable %d (%.17g, "
+                     "%.17g, %.17g) \"%s\"",
+                     i, rc_a, a[0], a[1], a[2], why_a.c_str(), rc_b, b[0], b[1], b[2],
+                     why_b.c_str());
+        found += rc_a == 0;
+    }
+    assert_true(found >= 8); // most frames have a circle to compare
 }
 
 static void clear_errors(void **state)
@@ -287,6 +368,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(circle_with_post_and_clutter),
         cmocka_unit_test(clear_errors),
+        cmocka_unit_test(avx512_and_portable_agree),
         cmocka_unit_test(crop_keeps_only_the_circle),
         cmocka_unit_test(undistortion_map),
         cmocka_unit_test(ray_directions),
