@@ -111,9 +111,8 @@ DEFAULTS_V2 = {
 DEFAULTS = DEFAULTS_V2
 
 # The weak fit's retries from larger circles (_grow, step 5 of docs/interfaces.md) stop after
-# this many rounds: each round that moves raises the support, so the retries end anyway, but
-# this bounds a frame's time. The 612 measurement frames take at most 3 rounds that move (4
-# tries). A constant of the algorithm, not a model parameter (a model's metadata holds every
+# this many tries: each try that moves raises the support, so the retries end anyway, but this
+# bounds a frame's time. The 612 measurement frames take at most 4 tries (3 that move). A constant of the algorithm, not a model parameter (a model's metadata holds every
 # parameter, with no default); host/libposeinfer/crop2.cpp has the same (grow_rounds).
 GROW_ROUNDS = 8
 
