@@ -59,13 +59,13 @@ inline bool avx512()
 #endif
 }
 
-// Working memory, kept between frames (per thread): fresh allocations of
-// these sizes cost more in page faults than the work itself.
 // The coarse accumulator and the box maximum's rows and planes, in 16 or 32
 // bits (coarse).
 template <class T> struct Acc {
     std::vector<T> acc, pair, h3, vmax, bmax;
 };
+// Working memory, kept between frames (per thread): fresh allocations of
+// these sizes cost more in page faults than the work itself.
 struct Scratch {
     std::vector<uint8_t> red; // the reduced image: block means fit a byte
     std::vector<int32_t> row, M, GX, GY, V, D;
@@ -294,8 +294,14 @@ KERN2_CLONES void nms_row(const int32_t *up, const int32_t *mc, const int32_t *d
 
 #ifdef CROP2_AVX512
 // nms_row and the kept edges' x (j + 1), y (y), gx and gy appended at ex[0
-// ..), ey, egx, egy with AVX-512: 16 pixels' tests as one mask, the kept
-// ones stored in order by compresses; their count returned.
+// ..), ey, egx, egy with AVX-512: 16 pixels' tests as one mask (the last
+// block's loads masked to the row: no scalar tail), the kept ones compressed
+// in order into a register and stored whole, 16 slots from the count (the
+// slots past the kept ones are overwritten next or left unused), not by
+// compressing stores to memory, which are microcoded and slow on some CPUs
+// (AMD Zen 4); their count returned. The count before pixel j is at most j,
+// so a block's store ends at most 15 slots past the row's last pixel's slot:
+// within edges()'s cap, a slot per pixel and 16 spare.
 __attribute__((target("avx512f"))) size_t edges_row512(const int32_t *up, const int32_t *mc,
                                                        const int32_t *dn, const int32_t *gx,
                                                        const int32_t *gy, int gw, int32_t tmin,
@@ -306,10 +312,12 @@ __attribute__((target("avx512f"))) size_t edges_row512(const int32_t *up, const 
                   vy = _mm512_set1_epi32(y),
                   step = _mm512_set_epi32(16, 15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1);
     size_t ne = 0;
-    int j = 0;
-    for (; j + 16 <= gw; j += 16) {
-        const __m512i m = _mm512_loadu_si512(mc + j), gxv = _mm512_loadu_si512(gx + j),
-                      gyv = _mm512_loadu_si512(gy + j);
+    for (int j = 0; j < gw; j += 16) {
+        // the block's pixels in the row (masked loads read nothing beyond them)
+        const __mmask16 in = gw - j >= 16 ? (__mmask16)0xFFFF : (__mmask16)((1u << (gw - j)) - 1);
+        const __m512i m = _mm512_maskz_loadu_epi32(in, mc + j),
+                      gxv = _mm512_maskz_loadu_epi32(in, gx + j),
+                      gyv = _mm512_maskz_loadu_epi32(in, gy + j);
         const __m512i ax = _mm512_abs_epi32(gxv), ay = _mm512_abs_epi32(gyv);
         const __m512i ax2 = _mm512_add_epi32(ax, ax), ay2 = _mm512_add_epi32(ay, ay);
         const __m512i ax5 = _mm512_add_epi32(_mm512_add_epi32(ax2, ax2), ax),
@@ -318,39 +326,26 @@ __attribute__((target("avx512f"))) size_t edges_row512(const int32_t *up, const 
                         vert = _mm512_cmp_epi32_mask(ax5, ay2, _MM_CMPINT_LE);
         const __mmask16 same = (__mmask16) ~(_mm512_cmp_epi32_mask(gxv, zero, _MM_CMPINT_NLE) ^
                                              _mm512_cmp_epi32_mask(gyv, zero, _MM_CMPINT_NLE));
-        const __m512i dga = _mm512_mask_blend_epi32(same, _mm512_loadu_si512(up + j + 1),
-                                                    _mm512_loadu_si512(up + j - 1));
-        const __m512i dgb = _mm512_mask_blend_epi32(same, _mm512_loadu_si512(dn + j - 1),
-                                                    _mm512_loadu_si512(dn + j + 1));
+        const __m512i dga = _mm512_mask_blend_epi32(same, _mm512_maskz_loadu_epi32(in, up + j + 1),
+                                                    _mm512_maskz_loadu_epi32(in, up + j - 1));
+        const __m512i dgb = _mm512_mask_blend_epi32(same, _mm512_maskz_loadu_epi32(in, dn + j - 1),
+                                                    _mm512_maskz_loadu_epi32(in, dn + j + 1));
         const __m512i a = _mm512_mask_blend_epi32(
-            horiz, _mm512_mask_blend_epi32(vert, dga, _mm512_loadu_si512(up + j)),
-            _mm512_loadu_si512(mc + j - 1));
+            horiz, _mm512_mask_blend_epi32(vert, dga, _mm512_maskz_loadu_epi32(in, up + j)),
+            _mm512_maskz_loadu_epi32(in, mc + j - 1));
         const __m512i b = _mm512_mask_blend_epi32(
-            horiz, _mm512_mask_blend_epi32(vert, dgb, _mm512_loadu_si512(dn + j)),
-            _mm512_loadu_si512(mc + j + 1));
-        const __mmask16 k = _mm512_cmp_epi32_mask(m, vt, _MM_CMPINT_NLT) &
+            horiz, _mm512_mask_blend_epi32(vert, dgb, _mm512_maskz_loadu_epi32(in, dn + j)),
+            _mm512_maskz_loadu_epi32(in, mc + j + 1));
+        const __mmask16 k = in & _mm512_cmp_epi32_mask(m, vt, _MM_CMPINT_NLT) &
                             _mm512_cmp_epi32_mask(m, a, _MM_CMPINT_NLT) &
                             _mm512_cmp_epi32_mask(m, b, _MM_CMPINT_NLT);
         if (!k) continue;
-        _mm512_mask_compressstoreu_epi32(ex + ne, k, _mm512_add_epi32(_mm512_set1_epi32(j), step));
-        _mm512_mask_compressstoreu_epi32(ey + ne, k, vy);
-        _mm512_mask_compressstoreu_epi32(egx + ne, k, gxv);
-        _mm512_mask_compressstoreu_epi32(egy + ne, k, gyv);
+        _mm512_storeu_si512(
+            ex + ne, _mm512_maskz_compress_epi32(k, _mm512_add_epi32(_mm512_set1_epi32(j), step)));
+        _mm512_storeu_si512(ey + ne, vy);
+        _mm512_storeu_si512(egx + ne, _mm512_maskz_compress_epi32(k, gxv));
+        _mm512_storeu_si512(egy + ne, _mm512_maskz_compress_epi32(k, gyv));
         ne += (size_t)__builtin_popcount((unsigned)k);
-    }
-    for (; j < gw; j++) {
-        const int32_t m = mc[j], gxv = gx[j], gyv = gy[j];
-        const int32_t ax = gxv < 0 ? -gxv : gxv, ay = gyv < 0 ? -gyv : gyv;
-        const bool horiz = 5 * ay <= 2 * ax, vert = 5 * ax <= 2 * ay;
-        const bool same = (gxv > 0) == (gyv > 0);
-        const int32_t dga = same ? up[j - 1] : up[j + 1], dgb = same ? dn[j + 1] : dn[j - 1];
-        const int32_t a = horiz ? mc[j - 1] : (vert ? up[j] : dga);
-        const int32_t b = horiz ? mc[j + 1] : (vert ? dn[j] : dgb);
-        ex[ne] = j + 1;
-        ey[ne] = y;
-        egx[ne] = gxv;
-        egy[ne] = gyv;
-        ne += (size_t)((m >= tmin) & (m >= a) & (m >= b));
     }
     return ne;
 }
@@ -388,7 +383,11 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
     auto mrow = [&](int t) -> int32_t * {
         return t == 0 || t == gh + 1 ? const_cast<int32_t *>(zero) : &M[(size_t)(t % 3) * P];
     };
-    const size_t cap = (size_t)gh * gw + 1;
+    // a slot per pixel and 16 spare (edges_row512's whole-vector stores; the
+    // portable loop below writes each pixel's edge at the count and keeps it
+    // by advancing the count: one slot past the kept edges, at most the
+    // pixel's own)
+    const size_t cap = (size_t)gh * gw + 16;
     if (e.x.size() < cap) {
         e.x.resize(cap);
         e.y.resize(cap);
@@ -605,6 +604,8 @@ KERN2_CLONES void box_max16(uint16_t *acc, int nb, int hs, int ws, uint16_t *pai
     box_max_t<uint16_t>(acc, nb, hs, ws, pair, h3, vmax, bmax);
 }
 
+// box_max16 under box_max's name: the overload vote_peaks<T> calls for the
+// 16-bit accumulator, so that one template serves both types.
 inline void box_max(uint16_t *acc, int nb, int hs, int ws, uint16_t *pair, uint16_t *h3,
                     uint16_t *vmax, uint16_t *bmax)
 {
@@ -952,32 +953,37 @@ KERN2_CLONES void step_score(const double *v, size_t ns, double *score)
 
 #ifdef CROP2_AVX512
 // The local maxima of at least thr among score[1 .. n - 2] (see peak_flags)
-// with AVX-512: each 16 scores' tests as one mask, the indexes of those
-// passing stored in order by one compress; their count returned.
+// with AVX-512: each 16 scores' tests as one mask (the last block's loads
+// masked to scores 1 .. n - 2 and their neighbours: no scalar tail), the
+// indexes of those passing compressed in order into a register and stored
+// whole, 16 slots from the count, not by a compressing store to memory
+// (microcoded and slow on some CPUs, AMD Zen 4); their count returned. The
+// count before score i is at most i - 1, so a store ends at most 15 slots
+// past score n - 2's slot: within pk's n slots and 16 spare.
 __attribute__((target("avx512f"))) long peaks512(const double *score, long n, double thr,
                                                  int32_t *pk)
 {
     const __m512d vt = _mm512_set1_pd(thr);
     const __m512i step = _mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
-    long m = 0, i = 1;
-    for (; i + 16 <= n - 1; i += 16) {
+    long m = 0;
+    for (long i = 1; i < n - 1; i += 16) {
+        // the block's scores among 1 .. n - 2 (masked loads read nothing beyond their neighbours)
+        const __mmask16 in =
+            n - 1 - i >= 16 ? (__mmask16)0xFFFF : (__mmask16)((1u << (n - 1 - i)) - 1);
         __mmask16 k = 0;
         for (int h = 0; h < 2; h++) {
             const double *q = score + i + 8 * h;
-            const __m512d c = _mm512_loadu_pd(q);
-            const __mmask8 kh = _mm512_cmp_pd_mask(c, vt, _CMP_GE_OQ) &
-                                _mm512_cmp_pd_mask(c, _mm512_loadu_pd(q - 1), _CMP_GE_OQ) &
-                                _mm512_cmp_pd_mask(c, _mm512_loadu_pd(q + 1), _CMP_GT_OQ);
+            const __mmask8 ih = (__mmask8)(in >> (8 * h));
+            const __m512d c = _mm512_maskz_loadu_pd(ih, q);
+            const __mmask8 kh =
+                ih & _mm512_cmp_pd_mask(c, vt, _CMP_GE_OQ) &
+                _mm512_cmp_pd_mask(c, _mm512_maskz_loadu_pd(ih, q - 1), _CMP_GE_OQ) &
+                _mm512_cmp_pd_mask(c, _mm512_maskz_loadu_pd(ih, q + 1), _CMP_GT_OQ);
             k = (__mmask16)(k | ((unsigned)kh << (8 * h)));
         }
-        _mm512_mask_compressstoreu_epi32(pk + m, k,
-                                         _mm512_add_epi32(_mm512_set1_epi32((int)i), step));
+        _mm512_storeu_si512(pk + m, _mm512_maskz_compress_epi32(
+                                        k, _mm512_add_epi32(_mm512_set1_epi32((int)i), step)));
         m += __builtin_popcount((unsigned)k);
-    }
-    for (; i < n - 1; i++) {
-        const double c = score[i];
-        pk[m] = (int32_t)i;
-        m += (c >= thr) & (c >= score[i - 1]) & (c > score[i + 1]);
     }
     return m;
 }
@@ -1039,7 +1045,7 @@ struct RayScores {
     // their indexes into pk[0 .. return value)
     long peaks(double thr)
     {
-        pk.resize((size_t)n);
+        pk.resize((size_t)n + 16); // 16 spare: peaks512's whole-vector stores
 #ifdef CROP2_AVX512
         if (avx512()) return peaks512(score.data(), n, thr, pk.data());
 #endif
