@@ -351,6 +351,34 @@ __attribute__((target("avx512f"))) size_t edges_row512(const int32_t *up, const 
 }
 #endif
 
+// One row's edges (nms_row's arguments), their x (j + 1), y, gx and gy
+// appended at ex[0 ..), ey, egx, egy (room for gw + 16), by edges_row512 or
+// the portable steps (set_avx512); their count returned. keep: gw + 4 flags,
+// the last 4 zero.
+inline size_t row_edges_at(const int32_t *up, const int32_t *mc, const int32_t *dn,
+                           const int32_t *gx, const int32_t *gy, int gw, int32_t tmin, int32_t y,
+                           int32_t *keep, int32_t *ex, int32_t *ey, int32_t *egx, int32_t *egy)
+{
+#ifdef CROP2_AVX512
+    if (avx512()) return edges_row512(up, mc, dn, gx, gy, gw, tmin, y, ex, ey, egx, egy);
+#endif
+    nms_row(up, mc, dn, gx, gy, gw, tmin, keep);
+    // branch-free: each edge written at the end and kept by advancing the
+    // count; the kept ones, four flags at a time
+    size_t ne = 0;
+    for (int j = 0; j < gw; j += 4) {
+        if (!(keep[j] | keep[j + 1] | keep[j + 2] | keep[j + 3])) continue;
+        for (int jj = j; jj < j + 4 && jj < gw; jj++) {
+            ex[ne] = jj + 1;
+            ey[ne] = y;
+            egx[ne] = gx[jj];
+            egy[ne] = gy[jj];
+            ne += (size_t)keep[jj];
+        }
+    }
+    return ne;
+}
+
 // The edges of the reduced image (see above) into e. pf[0 .. pf_len): memory
 // the votes will write next (the accumulator), brought into the cache a share
 // per row meanwhile: after a frame's network run it is no longer there, and
@@ -400,29 +428,9 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
     size_t ne = 0;
     // the edges of gradient row i (padded row i + 1)
     auto row_edges = [&](int i) {
-        const int32_t *gxr = &GX[(size_t)(i % 2) * gw], *gyr = &GY[(size_t)(i % 2) * gw];
-#ifdef CROP2_AVX512
-        if (avx512()) {
-            ne += edges_row512(mrow(i) + 1, mrow(i + 1) + 1, mrow(i + 2) + 1, gxr, gyr, gw, tmin,
-                               i + 1, &e.x[ne], &e.y[ne], &e.gx[ne], &e.gy[ne]);
-            return;
-        }
-#endif
-        nms_row(mrow(i) + 1, mrow(i + 1) + 1, mrow(i + 2) + 1, gxr, gyr, gw, tmin, keep.data());
-        // branch-free: each edge written at the end and kept by advancing
-        // the count; the kept ones, four flags at a time
-        for (int j = 0; j < gw; j += 4) {
-            if (!(keep[(size_t)j] | keep[(size_t)j + 1] | keep[(size_t)j + 2] |
-                  keep[(size_t)j + 3]))
-                continue;
-            for (int jj = j; jj < j + 4 && jj < gw; jj++) {
-                e.x[ne] = jj + 1;
-                e.y[ne] = i + 1;
-                e.gx[ne] = gxr[jj];
-                e.gy[ne] = gyr[jj];
-                ne += keep[(size_t)jj];
-            }
-        }
+        ne += row_edges_at(mrow(i) + 1, mrow(i + 1) + 1, mrow(i + 2) + 1, &GX[(size_t)(i % 2) * gw],
+                           &GY[(size_t)(i % 2) * gw], gw, tmin, i + 1, keep.data(), &e.x[ne],
+                           &e.y[ne], &e.gx[ne], &e.gy[ne]);
     };
     for (int i = 0; i < gh; i++) {
         const uint8_t *r0 = &red[(size_t)i * nb];
@@ -1749,6 +1757,30 @@ int set_avx512(int on)
     const bool has = avx512();
     avx512_forced = on < 0 ? -1 : (on != 0 && has);
     return avx512();
+}
+
+std::vector<int32_t> row_edges_of(const int32_t *up, const int32_t *mc, const int32_t *dn,
+                                  const int32_t *gx, const int32_t *gy, int gw, int32_t tmin)
+{
+    const size_t room = (size_t)gw + 16;
+    std::vector<int32_t> keep((size_t)gw + 4, 0), x(room), y(room), ox(room), oy(room), out;
+    const size_t n = row_edges_at(up, mc, dn, gx, gy, gw, tmin, 1, keep.data(), x.data(), y.data(),
+                                  ox.data(), oy.data());
+    for (size_t i = 0; i < n; i++) {
+        out.push_back(x[i]);
+        out.push_back(ox[i]);
+        out.push_back(oy[i]);
+    }
+    return out;
+}
+
+std::vector<int32_t> peaks_of(const double *score, long n, double thr)
+{
+    RayScores rs;
+    rs.n = n;
+    rs.score.assign(score, score + n);
+    const long m = rs.peaks(thr);
+    return std::vector<int32_t>(rs.pk.begin(), rs.pk.begin() + m);
 }
 
 std::vector<double> ray_dirs(int k)

@@ -55,6 +55,15 @@ std::vector<double> ray_dirs(int k);
 // For tests (both must give the same bits): not thread-safe.
 int set_avx512(int on);
 
+// For tests, by the steps set_avx512 picks: one row's coarse edges (mc the
+// row's magnitudes^2, up and dn the rows above and below, each of gw values
+// with one more before and after; gx, gy the row's gradient) as x, gx, gy
+// per kept pixel in order; and the step peaks of score[0 .. n) at least thr
+// (their indexes, in order).
+std::vector<int32_t> row_edges_of(const int32_t *up, const int32_t *mc, const int32_t *dn,
+                                  const int32_t *gx, const int32_t *gy, int gw, int32_t tmin);
+std::vector<int32_t> peaks_of(const double *score, long n, double thr);
+
 } // namespace crop2
 
 #endif

@@ -223,6 +223,46 @@ static void clear_errors(void **state)
                 0);
 }
 
+// The AVX-512 steps and their portable versions step by step (see
+// avx512_and_portable_agree): one row's coarse edges and a ray's step peaks
+// on random rows of every width (score count) 1 to 80, so that each width's
+// last block (masked loads, whole stores) is reached; whole frames leave
+// most of them out, and a lost edge or peak need not move a circle.
+static void avx512_steps_agree(void **state)
+{
+    (void)state;
+    if (!crop2::set_avx512(1)) {
+        crop2::set_avx512(-1);
+        skip();
+    }
+    std::mt19937 rng(11);
+    for (int rep = 0; rep < 40; rep++)
+        for (int w = 1; w <= 80; w++) {
+            const size_t P = (size_t)w + 2;
+            std::vector<int32_t> M(3 * P), gx((size_t)w), gy((size_t)w);
+            for (auto &v : M) v = (int32_t)(rng() % 50);
+            for (size_t r = 0; r < 3; r++) M[r * P] = M[r * P + P - 1] = 0;
+            for (auto &v : gx) v = (int32_t)(rng() % 21) - 10;
+            for (auto &v : gy) v = (int32_t)(rng() % 21) - 10;
+            const int32_t tmin = (int32_t)(rng() % 30) - 2;
+            std::vector<double> score((size_t)w);
+            for (auto &v : score) v = (double)(rng() % 8);
+            const double thr = (double)(rng() % 6) - 0.5;
+            std::vector<int32_t> e[2], k[2];
+            for (int on = 1; on >= 0; on--) {
+                crop2::set_avx512(on);
+                e[on] = crop2::row_edges_of(&M[1], &M[P + 1], &M[2 * P + 1], gx.data(), gy.data(),
+                                            w, tmin);
+                k[on] = crop2::peaks_of(score.data(), w, thr);
+            }
+            crop2::set_avx512(-1);
+            if (e[0] != e[1] || k[0] != k[1])
+                fail_msg("width %d, round %d: edges %zu / %zu values, peaks %zu / %zu (AVX-512 / "
+                         "portable)",
+                         w, rep, e[1].size(), e[0].size(), k[1].size(), k[0].size());
+        }
+}
+
 static void crop_keeps_only_the_circle(void **state)
 {
     (void)state;
@@ -369,6 +409,7 @@ int main(void)
         cmocka_unit_test(circle_with_post_and_clutter),
         cmocka_unit_test(clear_errors),
         cmocka_unit_test(avx512_and_portable_agree),
+        cmocka_unit_test(avx512_steps_agree),
         cmocka_unit_test(crop_keeps_only_the_circle),
         cmocka_unit_test(undistortion_map),
         cmocka_unit_test(ray_directions),
