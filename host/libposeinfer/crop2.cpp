@@ -895,15 +895,8 @@ ray_gather512(const uint8_t *fp, int64_t st, double cx, double cy, double ux, do
         _mm512_storeu_si512(wa + j, _mm512_i64gather_epi64(off, fp, 1));
         _mm512_storeu_si512(wb + j, _mm512_i64gather_epi64(_mm512_add_epi64(off, vlow), fp, 1));
     }
-    for (; j < ns; j++) {
-        const double X = cx + rho[j] * ux, Y = cy + rho[j] * uy;
-        const int32_t x0 = (int32_t)X, y0 = (int32_t)Y;
-        fx[j] = X - (double)x0;
-        fy[j] = Y - (double)y0;
-        const uint8_t *a = fp + ((int64_t)y0 * st + 3 * (int64_t)x0);
-        std::memcpy(&wa[j], a, 8);
-        std::memcpy(&wb[j], a + st - 2, 8);
-    }
+    if (j < ns) // the last ns % 8 samples, one by one
+        ray_gather(fp, st, cx, cy, ux, uy, rho + j, ns - j, fx + j, fy + j, wa + j, wb + j);
 }
 #endif
 
