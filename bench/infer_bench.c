@@ -10,7 +10,7 @@
  * "full_decode": [...], "full_preprocess": [...], "full_infer": [...],
  * "full_refine": [...], "full_locate": [...] (of full_preprocess, finding the
  * sphere alone; 0 for a sphere-crop-v1 model), "refused": [{"file": ...,
- * "error": ...}]}.
+ * "error": ...}], "cpu_paths": pi_cpu_paths()}.
  *
  * A frame the preprocessing refuses (no sphere, two spheres, cut by the
  * frame edge: an error "preprocess: ...") is listed under "refused" once and
@@ -141,7 +141,9 @@ int main(int argc, char **argv)
         printf("}");
         first = 0;
     }
-    printf("]}\n");
+    printf("], \"cpu_paths\": ");
+    print_json_string(pi_cpu_paths()); /* the times hold for these loops only */
+    printf("}\n");
     rc = 0;
     goto fail;
 fail_err:

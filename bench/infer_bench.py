@@ -167,8 +167,8 @@ def format_side(model, frames, rounds, threads, camera_file, work):
     d = c_side(model, pairs, rounds, threads, "cpu", camera_file)
     if d["refused"]:
         raise SystemExit(f"infer_bench: frames refused in the format run: {d['refused']}")
-    return ({k: v[0::2] for k, v in d.items() if k != "refused"},
-            {k: v[1::2] for k, v in d.items() if k != "refused"})
+    times = {k: v for k, v in d.items() if k not in ("refused", "cpu_paths")}
+    return ({k: v[0::2] for k, v in times.items()}, {k: v[1::2] for k, v in times.items()})
 
 
 def python_side(model, frames, rounds, threads, camera, refused):
@@ -403,6 +403,8 @@ def main(args):
         f"- Versions: ONNX Runtime {ort.__version__} (C and Python), OpenCV 4.6 (C, Debian) and "
         f"{cv2.__version__} (Python, pip)",
         f"- Python preprocessing: {preprocess_state()}",
+        f"- The runtime's own loops on this processor: {c_cpu.get('cpu_paths', 'not reported')} (the same "
+        "answers on every processor; without AVX-512 the portable ones run, slower: docs/benchmarks.md)",
         "",
         "Per-frame time in ms. CPU = process CPU time, the fair measure on this shared machine (other jobs",
         "were running; wall time mostly measures them); wall = monotonic clock.",

@@ -114,6 +114,11 @@ int pi_preprocess_frame(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n
 /* Side S of the network input. */
 int pi_input_size(const pi_ctx *ctx);
 
+/* Which versions of the runtime's own per-pixel loops run on this processor,
+ * e.g. "localisation AVX-512, refinement AVX-512": the same answers on every
+ * processor, not the same time (docs/bench/host.md). A static string. */
+const char *pi_cpu_paths(void);
+
 /* A metadata value of the loaded model (e.g. "spherepose.texture"), or NULL. */
 const char *pi_metadata(const pi_ctx *ctx, const char *key);
 

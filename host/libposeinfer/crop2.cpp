@@ -1752,6 +1752,11 @@ int set_avx512(int on)
     return avx512();
 }
 
+int uses_avx512()
+{
+    return avx512();
+}
+
 std::vector<int32_t> row_edges_of(const int32_t *up, const int32_t *mc, const int32_t *dn,
                                   const int32_t *gx, const int32_t *gy, int gw, int32_t tmin)
 {

@@ -55,6 +55,9 @@ std::vector<double> ray_dirs(int k);
 // For tests (both must give the same bits): not thread-safe.
 int set_avx512(int on);
 
+// Whether those steps run now (what set_avx512 last left), without changing it.
+int uses_avx512();
+
 // For tests, by the steps set_avx512 picks: one row's coarse edges (mc the
 // row's magnitudes^2, up and dn the rows above and below, each of gw values
 // with one more before and after; gx, gy the row's gradient) as x, gx, gy

@@ -654,6 +654,17 @@ int pi_input_size(const pi_ctx *ctx)
     return ctx ? ctx->pp.size : 0;
 }
 
+const char *pi_cpu_paths(void)
+{
+    static const char *const paths[2][3] = {
+        {"localisation portable, refinement x86-64 baseline",
+         "localisation portable, refinement AVX2", "localisation portable, refinement AVX-512"},
+        {"localisation AVX-512, refinement x86-64 baseline",
+         "localisation AVX-512, refinement AVX2", "localisation AVX-512, refinement AVX-512"}};
+    const int v = rf_version_in_use();
+    return paths[shim_crop2_avx512() != 0][v >= 0 && v <= 2 ? v : 0];
+}
+
 const char *pi_metadata(const pi_ctx *ctx, const char *key)
 {
     if (!ctx || !key) return NULL;

@@ -84,6 +84,11 @@ static int rf_version(void)
 #endif
 }
 
+int rf_version_in_use(void)
+{
+    return rf_version();
+}
+
 int rf_set_version(int v)
 {
     rf_forced = -1;

@@ -106,4 +106,7 @@ int rf_base64_decode(const char *text, unsigned char **out, size_t *len);
  * Returns the version now in effect. For tests: not thread-safe. */
 int rf_set_version(int v);
 
+/* The version of the per-pixel loops in effect, without changing it. */
+int rf_version_in_use(void);
+
 #endif

@@ -338,6 +338,11 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
     return 0;
 }
 
+extern "C" int shim_crop2_avx512(void)
+{
+    return crop2::uses_avx512();
+}
+
 extern "C" int shim_camera_prepare(pp_params *p, char *err)
 {
     try {

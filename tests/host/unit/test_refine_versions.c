@@ -15,6 +15,7 @@
 
 #include <cmocka.h>
 
+#include "poseinfer.h"
 #include "refine.h"
 
 #include "synth_sphere.h"
@@ -107,8 +108,11 @@ static void versions_agree(void **state)
     assert_true(best >= 0 && best <= 2);
     assert_int_equal(rf_set_version(best + 1), best); /* no more than the processor has */
     static answers a[3];
+    static const char *const named[] = {"refinement x86-64 baseline", "refinement AVX2",
+                                        "refinement AVX-512"};
     for (int v = 0; v <= best; v++) {
         assert_int_equal(rf_set_version(v), v);
+        assert_non_null(strstr(pi_cpu_paths(), named[v])); /* what the bench reports */
         run_version((const rf_texture *const *)t, w, frames, poses, &a[v]);
     }
     rf_set_version(-1);
