@@ -144,6 +144,7 @@ static void versions_agree(void **state)
     for (int k = 0; k < NFRAMES; k++) free(frames[k]);
     for (int x = 0; x < NTEX; x++) rf_texture_free(t[x]);
     free(tex);
+    if (best == 0) skip(); /* one version on this processor: nothing was compared */
 }
 
 int main(void)
