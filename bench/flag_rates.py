@@ -177,8 +177,9 @@ def set_folder(out, s):
 
 
 def select(sets, only):
+    """The sets --only asks for: (the sets to make, the sets to count)."""
     if not only:
-        return sets
+        return sets, sets
     names = {s["name"] for s in sets}
     unknown = [o for o in only if o not in GROUPS and o not in names]
     if unknown:
@@ -187,7 +188,7 @@ def select(sets, only):
     keep = [s for s in sets if s["group"] in only or s["name"] in only]
     # a gray copy needs its colour set's frames, which are then made (not counted)
     need = {s["source"] for s in keep if s["gen"] == "gray"}
-    return [s for s in sets if s in keep or s["name"] in need]
+    return [s for s in sets if s in keep or s["name"] in need], keep
 
 
 def vtk_command(args, s, folder):
@@ -534,14 +535,13 @@ def main(args):
     args.model, args.poseinfer = os.path.abspath(args.model), os.path.abspath(args.poseinfer)
     args.textures, out = os.path.abspath(args.textures), os.path.abspath(args.out)
     all_sets = make_sets(args.n)
-    sets = select(all_sets, args.only)
+    sets, counted = select(all_sets, args.only)
     if args.list:
         for s in sets:
             print(f"{s['name']:24s} {s['group']:8s} seed {s['seed']:3d} {s['count']:4d} frames  "
                   f"{describe(args, s, out)}")
         return 0
     check_inputs(args, sets)
-    counted = [s for s in sets if not args.only or s["group"] in args.only or s["name"] in args.only]
     try:
         from tqdm import tqdm
     except ImportError:

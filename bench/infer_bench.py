@@ -51,6 +51,7 @@ import cv2  # noqa: E402
 import onnxruntime as ort  # noqa: E402
 
 from machine import load_1min, machine  # noqa: E402
+from sim.frames import write_atomic  # noqa: E402
 from training import preprocess  # noqa: E402
 
 HOST = ROOT / "host" / "build"
@@ -145,7 +146,6 @@ def c_side(model, frames, rounds, threads, clock, camera_file):
 def bmp_copies(frames, work):
     """Each frame again as an uncompressed BMP (the same pixels, checked), for the
     decode-format comparison: a camera program can hand poseinfer either."""
-    from sim.frames import write_atomic
     d = work / "frames-bmp"
     d.mkdir(parents=True, exist_ok=True)
     out = []
@@ -167,7 +167,7 @@ def format_side(model, frames, rounds, threads, camera_file, work):
     d = c_side(model, pairs, rounds, threads, "cpu", camera_file)
     if d["refused"]:
         raise SystemExit(f"infer_bench: frames refused in the format run: {d['refused']}")
-    times = {k: v for k, v in d.items() if k not in ("refused", "cpu_paths")}
+    times = {k: v for k, v in d.items() if k != "refused" and isinstance(v, list)}  # the per-frame lists
     return ({k: v[0::2] for k, v in times.items()}, {k: v[1::2] for k, v in times.items()})
 
 
