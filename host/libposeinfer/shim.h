@@ -63,10 +63,10 @@ int pp_camera_load(const char *path, pp_camera *cam, char *err);
 /* Build the undistortion map of p->cam (when it has distortion) into
  * p->undistort; shim_camera_free releases it. */
 int shim_camera_prepare(pp_params *p, char *err);
+void shim_camera_free(pp_params *p);
 
 /* Whether sphere-crop-v2's AVX-512 steps run on this processor (crop2.h). */
 int shim_crop2_avx512(void);
-void shim_camera_free(pp_params *p);
 
 /* A holder for decoded pixels (a cv::Mat inside). */
 typedef struct shim_mat shim_mat;
