@@ -88,7 +88,8 @@ static void drain_sig_pipe(void)
 
 /* ---- JSON lines ------------------------------------------------------------ */
 
-void result_json(sbuf *s, const char *key, const char *name, const pi_result *r, int timings)
+/* `{"key": "name", ` when the line names its input */
+static void open_line(sbuf *s, const char *key, const char *name)
 {
     sb_puts(s, "{");
     if (key) {
@@ -97,28 +98,42 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
         sb_json_str(s, name);
         sb_puts(s, ", ");
     }
-    sb_puts(s, "\"x\": ");
-    sb_json_num(s, r->x, 4);
-    sb_puts(s, ", \"y\": ");
-    sb_json_num(s, r->y, 4);
-    sb_puts(s, ", \"z\": ");
-    sb_json_num(s, r->z, 4);
-    sb_puts(s, ", \"ms\": ");
-    sb_json_num(s, r->total_ms, 3);
-    /* the sphere's circle, conventions' continuous pixels (docs/poseinfer.md) */
-    sb_puts(s, ", \"circle\": [");
-    sb_json_num(s, r->cx + 0.5, 3);
-    sb_puts(s, ", ");
-    sb_json_num(s, r->cy + 0.5, 3);
-    sb_puts(s, ", ");
-    sb_json_num(s, r->r, 3);
+}
+
+/* `<label>number`, label being `, "key": ` */
+static void put_num(sbuf *s, const char *label, double v, int decimals)
+{
+    sb_puts(s, label);
+    sb_json_num(s, v, decimals);
+}
+
+/* `[a, b, ...]` */
+static void put_nums(sbuf *s, const double *v, int n, int decimals)
+{
+    sb_puts(s, "[");
+    for (int i = 0; i < n; i++) {
+        if (i) sb_puts(s, ", ");
+        sb_json_num(s, v[i], decimals);
+    }
     sb_puts(s, "]");
+}
+
+void result_json(sbuf *s, const char *key, const char *name, const pi_result *r, int timings)
+{
+    open_line(s, key, name);
+    put_num(s, "\"x\": ", r->x, 4);
+    put_num(s, ", \"y\": ", r->y, 4);
+    put_num(s, ", \"z\": ", r->z, 4);
+    put_num(s, ", \"ms\": ", r->total_ms, 3);
+    /* the sphere's circle, conventions' continuous pixels (docs/poseinfer.md) */
+    const double circle[3] = {r->cx + 0.5, r->cy + 0.5, r->r};
+    sb_puts(s, ", \"circle\": ");
+    put_nums(s, circle, 3, 3);
     /* docs/refine.md: null when the model carries no texture */
     sb_puts(s, r->has_confidence
                    ? (r->confident ? ", \"confident\": true" : ", \"confident\": false")
                    : ", \"confident\": null");
-    sb_puts(s, ", \"residual\": ");
-    sb_json_num(s, r->has_confidence ? r->residual : NAN, 5);
+    put_num(s, ", \"residual\": ", r->has_confidence ? r->residual : NAN, 5);
     if (r->has_confidence && !r->confident) {
         sb_puts(s, ", \"note\": ");
         sb_json_str(s, r->note);
@@ -126,52 +141,29 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
     if (r->has_rotmat) {
         sb_puts(s, ", \"rotmat\": [");
         for (int i = 0; i < 3; i++) {
-            sb_puts(s, i ? ", [" : "[");
-            for (int j = 0; j < 3; j++) {
-                if (j) sb_puts(s, ", ");
-                sb_json_num(s, r->rotmat[i][j], 6);
-            }
-            sb_puts(s, "]");
+            if (i) sb_puts(s, ", ");
+            put_nums(s, r->rotmat[i], 3, 6);
         }
         sb_puts(s, "]");
     }
     if (timings) {
-        sb_puts(s, ", \"decode_ms\": ");
-        sb_json_num(s, r->decode_ms, 3);
-        sb_puts(s, ", \"preprocess_ms\": ");
-        sb_json_num(s, r->preprocess_ms, 3);
-        sb_puts(s, ", \"locate_ms\": ");
-        sb_json_num(s, r->locate_ms, 3);
-        sb_puts(s, ", \"infer_ms\": ");
-        sb_json_num(s, r->infer_ms, 3);
-        sb_puts(s, ", \"refine_ms\": ");
-        sb_json_num(s, r->refine_ms, 3);
-        sb_puts(s, ", \"net\": [");
-        sb_json_num(s, r->net[0], 4);
-        sb_puts(s, ", ");
-        sb_json_num(s, r->net[1], 4);
-        sb_puts(s, ", ");
-        sb_json_num(s, r->net[2], 4);
-        sb_puts(s, "]");
-        sb_puts(s, ", \"cx\": ");
-        sb_json_num(s, r->cx, 2);
-        sb_puts(s, ", \"cy\": ");
-        sb_json_num(s, r->cy, 2);
-        sb_puts(s, ", \"r\": ");
-        sb_json_num(s, r->r, 2);
+        put_num(s, ", \"decode_ms\": ", r->decode_ms, 3);
+        put_num(s, ", \"preprocess_ms\": ", r->preprocess_ms, 3);
+        put_num(s, ", \"locate_ms\": ", r->locate_ms, 3);
+        put_num(s, ", \"infer_ms\": ", r->infer_ms, 3);
+        put_num(s, ", \"refine_ms\": ", r->refine_ms, 3);
+        sb_puts(s, ", \"net\": ");
+        put_nums(s, r->net, 3, 4);
+        put_num(s, ", \"cx\": ", r->cx, 2);
+        put_num(s, ", \"cy\": ", r->cy, 2);
+        put_num(s, ", \"r\": ", r->r, 2);
     }
     sb_puts(s, "}");
 }
 
 void error_json(sbuf *s, const char *key, const char *name, const char *msg)
 {
-    sb_puts(s, "{");
-    if (key) {
-        sb_json_str(s, key);
-        sb_puts(s, ": ");
-        sb_json_str(s, name);
-        sb_puts(s, ", ");
-    }
+    open_line(s, key, name);
     sb_puts(s, "\"error\": ");
     sb_json_str(s, msg);
     sb_puts(s, "}");
