@@ -24,3 +24,14 @@ def sphere_frame(h=512, w=640, cx=320, cy=256, r=133, seed=0, bg=(35, 45, 55), g
     if gray:
         img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     return img
+
+
+def dots_texture(path, seed=3):
+    """A texture for `sim render` / `sim vcam`: 60 coloured dots on light gray, written to path."""
+    rng = np.random.default_rng(seed)
+    t = np.full((256, 512, 3), 230, np.uint8)
+    for _ in range(60):
+        cv2.circle(t, (int(rng.integers(0, 512)), int(rng.integers(0, 256))), int(rng.integers(5, 30)),
+                   tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
+    cv2.imwrite(str(path), t)
+    return path

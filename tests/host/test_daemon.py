@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from pihelpers import sphere_frame
+from pihelpers import dots_texture, sphere_frame
 
 cv2 = pytest.importorskip("cv2")
 
@@ -215,17 +215,10 @@ def test_idle_cpu(daemon, models, tmp_path):
 def test_real_virtual_camera(run, models, tmp_path, timeout_scale):
     """The unix: client against the project's own frame server (`sim vcam`)."""
     from pihelpers import ROOT
-    import numpy as np
     sim = ROOT / ".venv" / "bin" / "sim"
     if not sim.exists():
         pytest.skip("sim not installed")
-    tex = tmp_path / "tex.png"
-    rng = np.random.default_rng(3)
-    t = np.full((256, 512, 3), 230, np.uint8)
-    for _ in range(60):
-        cv2.circle(t, (int(rng.integers(0, 512)), int(rng.integers(0, 256))), int(rng.integers(5, 30)),
-                   tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
-    cv2.imwrite(str(tex), t)
+    tex = dots_texture(tmp_path / "tex.png")
     sock = tmp_path / "vcam.sock"
     p = subprocess.Popen([str(sim), "vcam", "--texture", str(tex), "--socket", str(sock), "--pose", "10", "-5", "20"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

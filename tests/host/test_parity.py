@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import make_model
-from pihelpers import ROOT, sphere_frame
+from pihelpers import ROOT, dots_texture, sphere_frame
 from training import preprocess
 from training import rigcomposite as rc
 
@@ -62,13 +62,7 @@ def parity_frames(tmp_path_factory):
     paths.append(p)
     sim = ROOT / ".venv" / "bin" / "sim"
     if sim.exists():
-        tex = d / "tex.png"
-        rng = np.random.default_rng(3)
-        t = np.full((256, 512, 3), 230, np.uint8)
-        for _ in range(60):
-            cv2.circle(t, (int(rng.integers(0, 512)), int(rng.integers(0, 256))), int(rng.integers(5, 30)),
-                       tuple(int(v) for v in rng.integers(0, 255, 3)), -1)
-        cv2.imwrite(str(tex), t)
+        tex = dots_texture(d / "tex.png")
         p = d / "rendered.png"
         proc = subprocess.run([str(sim), "render", "--texture", str(tex), "--pose", "10", "-5", "20",
                                "--out", str(p)], capture_output=True, timeout=120)
