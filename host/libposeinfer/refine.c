@@ -192,6 +192,7 @@ struct rf_work {
     double sst;           /* the sampled pixels' variance sum (pixel_set) */
     double so[3], soo[3]; /* the sampled pixels' sums of obs and obs^2 per channel (exact) */
     float gp[6];          /* the last value pass's geometry_pass parameters (GEO_*) */
+    uint8_t pack[256][8]; /* gather_pass_avx2: the lanes set in a mask of 8, in order */
 };
 
 static const int rf_iters[RF_LEVELS] = RF_ITERS_INIT;
@@ -449,7 +450,12 @@ void rf_texture_free(rf_texture *t)
 
 rf_work *rf_work_new(void)
 {
-    return calloc(1, sizeof(rf_work));
+    rf_work *w = calloc(1, sizeof(rf_work));
+    if (w)
+        for (int m = 0; m < 256; m++)
+            for (int l = 0, n = 0; l < 8; l++)
+                if (m >> l & 1) w->pack[m][n++] = (uint8_t)l;
+    return w;
 }
 
 void rf_work_free(rf_work *w)
@@ -814,6 +820,111 @@ gather_pass_avx512(rf_work *w, long n, long np, const void *restrict tex, int pa
                 _mm512_storeu_ps(w->ja[A_V0 + c] + m, _mm512_maskz_compress_ps(act, val[c]));
                 _mm512_storeu_ps(w->ja[A_DU0 + c] + m, _mm512_maskz_compress_ps(act, du[c]));
                 _mm512_storeu_ps(w->ja[A_DV0 + c] + m, _mm512_maskz_compress_ps(act, dv[c]));
+            }
+            m += __builtin_popcount(act);
+        }
+    }
+    return m;
+}
+#endif
+
+#ifdef RF_X86_GCC
+/* gather_pass_avx512 with AVX2, 8 samples at a time, and the operations of
+ * the baseline's gather_pass lane by lane (nothing fused): the AVX2 and
+ * baseline versions give the same bits. The compressed stores take their
+ * lanes from w->pack. */
+__attribute__((target("avx2"), optimize("fp-contract=off"))) static long
+gather_pass_avx2(rf_work *w, long n, long np, const void *restrict tex, int pair, int tr,
+                 float scale)
+{
+    const int32_t *restrict off = w->off;
+    const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
+    const long long *base = (const long long *)tex;
+    const __m256 sc = _mm256_set1_ps(scale);
+    const __m256i one = _mm256_set1_epi32(1), three = _mm256_set1_epi32(3),
+                  four = _mm256_set1_epi32(4), seven = _mm256_set1_epi32(7),
+                  down = _mm256_set1_epi32(tr - 8), ten = _mm256_set1_epi32(0x3ff),
+                  word = _mm256_set1_epi32(0xffff), nosign = _mm256_set1_epi32(0x7fffffff),
+                  lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    long m = 0;
+    for (long k = 0; k < n; k += 8) {
+        if (k + 32 < n)
+            for (int l = 0; l < 8; l++) {
+                int32_t o = off[k + 32 + l];
+                const long long *p = base + o;
+                __builtin_prefetch(p);
+                __builtin_prefetch(p + (pair ? RF_PAIR_DY(o, tr) : RF_TILE_DY(o, tr)));
+            }
+        __m256i o = _mm256_load_si256((const __m256i *)(off + k));
+        __m256 v[3][4]; /* channel c's texels (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1) */
+#define RF_GATHER8(dst, idx)                                                                 \
+    do {                                                                                     \
+        __m256 a_ = _mm256_castsi256_ps(                                                     \
+                   _mm256_i32gather_epi64(base, _mm256_castsi256_si128(idx), 8)),            \
+               b_ = _mm256_castsi256_ps(                                                     \
+                   _mm256_i32gather_epi64(base, _mm256_extracti128_si256(idx, 1), 8));       \
+        /* each 64-bit word's low and high halves, in sample order */                        \
+        dst[0] = _mm256_castpd_si256(                                                        \
+            _mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(a_, b_, 0x88)), 0xd8)); \
+        dst[1] = _mm256_castpd_si256(                                                        \
+            _mm256_permute4x64_pd(_mm256_castps_pd(_mm256_shuffle_ps(a_, b_, 0xdd)), 0xd8)); \
+    } while (0)
+        if (pair) {
+            __m256i last = _mm256_cmpeq_epi32(_mm256_and_si256(o, seven), seven);
+            __m256i dy = _mm256_add_epi32(one, _mm256_and_si256(last, down));
+            for (int r = 0; r < 2; r++) {
+                __m256i g[2]; /* the left and right texels */
+                RF_GATHER8(g, r ? _mm256_add_epi32(o, dy) : o);
+                for (int c = 0; c < 3; c++)
+                    for (int x = 0; x < 2; x++)
+                        v[c][2 * r + x] = _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_and_si256(
+                                                            _mm256_srli_epi32(g[x], 10 * c), ten)),
+                                                        sc);
+            }
+        } else {
+            __m256i dx = _mm256_add_epi32(
+                one, _mm256_and_si256(_mm256_add_epi32(_mm256_and_si256(o, three), one), four));
+            __m256i dy = _mm256_add_epi32(
+                four, _mm256_and_si256(_mm256_srai_epi32(_mm256_slli_epi32(o, 29), 31), down));
+            for (int q = 0; q < 4; q++) {
+                __m256i oq = o, g[2]; /* B | G << 16 and R of each texel */
+                if (q & 1) oq = _mm256_add_epi32(oq, dx);
+                if (q & 2) oq = _mm256_add_epi32(oq, dy);
+                RF_GATHER8(g, oq);
+                __m256i ch[3] = {_mm256_and_si256(g[0], word), _mm256_srli_epi32(g[0], 16),
+                                 _mm256_and_si256(g[1], word)};
+                for (int c = 0; c < 3; c++) v[c][q] = _mm256_mul_ps(_mm256_cvtepi32_ps(ch[c]), sc);
+            }
+        }
+#undef RF_GATHER8
+        __m256 a = _mm256_load_ps(fx + k), b = _mm256_load_ps(fy + k), du[3], dv[3], val[3];
+        __m256i any = _mm256_setzero_si256();
+        for (int c = 0; c < 3; c++) {
+            __m256 a00 = v[c][0], a10 = v[c][1], a01 = v[c][2], a11 = v[c][3];
+            __m256 d0 = _mm256_sub_ps(a10, a00), d1 = _mm256_sub_ps(a11, a01);
+            __m256 top = _mm256_add_ps(a00, _mm256_mul_ps(a, d0)),
+                   bot = _mm256_add_ps(a01, _mm256_mul_ps(a, d1));
+            val[c] = _mm256_add_ps(top, _mm256_mul_ps(b, _mm256_sub_ps(bot, top)));
+            du[c] = _mm256_add_ps(d0, _mm256_mul_ps(b, _mm256_sub_ps(d1, d0)));
+            dv[c] = _mm256_sub_ps(bot, top);
+            _mm256_store_ps(w->a[A_V0 + c] + k, val[c]);
+            any = _mm256_or_si256(
+                any, _mm256_or_si256(_mm256_castps_si256(du[c]), _mm256_castps_si256(dv[c])));
+        }
+        /* active_samples' choice: a derivative nonzero (-0 is 0), not padding */
+        unsigned act = ~(unsigned)_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                           _mm256_and_si256(any, nosign), _mm256_setzero_si256()))) &
+                       0xff;
+        if (k + 8 > np) act &= np > k ? (1u << (np - k)) - 1 : 0;
+        if (act) {
+            __m256i perm = _mm256_cvtepu8_epi32(_mm_loadl_epi64((const __m128i *)w->pack[act]));
+            _mm256_storeu_si256((__m256i *)(w->idx + m),
+                                _mm256_permutevar8x32_epi32(
+                                    _mm256_add_epi32(_mm256_set1_epi32((int)k), lane), perm));
+            for (int c = 0; c < 3; c++) {
+                _mm256_storeu_ps(w->ja[A_V0 + c] + m, _mm256_permutevar8x32_ps(val[c], perm));
+                _mm256_storeu_ps(w->ja[A_DU0 + c] + m, _mm256_permutevar8x32_ps(du[c], perm));
+                _mm256_storeu_ps(w->ja[A_DV0 + c] + m, _mm256_permutevar8x32_ps(dv[c], perm));
             }
             m += __builtin_popcount(act);
         }
@@ -1204,6 +1315,9 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     if (rf_version() == 2)
         w->nact = gather_pass_avx512(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
                                      tr, t->scale[lev]);
+    else if (rf_version() == 1)
+        w->nact = gather_pass_avx2(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
+                                   tr, t->scale[lev]);
     else
 #endif
     {
@@ -1468,6 +1582,14 @@ __attribute__((target("avx512f"))) static void pick_avx512(float *dst, const flo
         _mm512_store_ps(dst + k,
                         _mm512_i32gather_ps(_mm512_load_si512((const void *)(idx + k)), src, 4));
 }
+
+__attribute__((target("avx2"))) static void pick_avx2(float *dst, const float *src,
+                                                      const int32_t *idx, long m)
+{
+    for (long k = 0; k < m; k += 8)
+        _mm256_store_ps(dst + k,
+                        _mm256_i32gather_ps(src, _mm256_load_si256((const __m256i *)(idx + k)), 4));
+}
 #endif
 
 static long jac_samples(rf_work *w)
@@ -1495,6 +1617,8 @@ static long jac_samples(rf_work *w)
 #ifdef RF_X86_GCC
         if (rf_version() == 2)
             pick_avx512(dst, src, idx, mp);
+        else if (rf_version() == 1)
+            pick_avx2(dst, src, idx, mp);
         else
 #endif
             for (long k = 0; k < m; k++) dst[k] = src[idx[k]];
