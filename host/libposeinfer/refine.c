@@ -1108,6 +1108,63 @@ fit_sums_avx2(const rf_work *w, long npad, int nch, double q[3][20])
     }
 }
 #endif
+#if defined(RF_X86_GCC) && RF_VL == 16
+/* The same for the baseline (SSE2): the 8 lanes as four vectors of 2, each
+ * quarter on its own. */
+typedef double vd2 __attribute__((vector_size(2 * sizeof(double))));
+typedef float vf2x __attribute__((vector_size(2 * sizeof(float))));
+static inline vd2 vd2load(const float *p)
+{
+    return __builtin_convertvector(*(const vf2x *)p, vd2);
+}
+__attribute__((optimize("fp-contract=off"))) static void fit_sums_sse2(const rf_work *w, long npad,
+                                                                       int nch, double q[3][20])
+{
+    const float *nx = w->a[A_NX], *ny = w->a[A_NY], *nz = w->a[A_NZ];
+    for (int c = 0; c < nch; c++) {
+        const float *tv = w->a[A_V0 + c], *ov = w->a[A_O0 + c];
+        vd2 acc[4][18];
+        for (int h = 0; h < 4; h++) {
+            vd2 s[10];
+            for (int i = 0; i < 10; i++) s[i] = (vd2){0};
+            for (long k = 2 * h; k < npad; k += 8) {
+                vd2 n0 = vd2load(nx + k), n1 = vd2load(ny + k), n2 = vd2load(nz + k);
+                vd2 t = vd2load(tv + k), t2 = t * t;
+                s[0] += t2;
+                s[1] += t2 * n0;
+                s[2] += t2 * n1;
+                s[3] += t2 * n2;
+                s[4] += t2 * (n0 * n0);
+                s[5] += t2 * (n0 * n1);
+                s[6] += t2 * (n0 * n2);
+                s[7] += t2 * (n1 * n1);
+                s[8] += t2 * (n1 * n2);
+                s[9] += t2 * (n2 * n2);
+            }
+            memcpy(acc[h], s, sizeof s);
+            for (int i = 0; i < 8; i++) s[i] = (vd2){0};
+            for (long k = 2 * h; k < npad; k += 8) {
+                vd2 n0 = vd2load(nx + k), n1 = vd2load(ny + k), n2 = vd2load(nz + k);
+                vd2 t = vd2load(tv + k), to = t * vd2load(ov + k);
+                s[0] += t;
+                s[1] += t * n0;
+                s[2] += t * n1;
+                s[3] += t * n2;
+                s[4] += to;
+                s[5] += to * n0;
+                s[6] += to * n1;
+                s[7] += to * n2;
+            }
+            memcpy(acc[h] + 10, s, 8 * sizeof s[0]);
+        }
+        for (int i = 0; i < 18; i++) {
+            double sum = 0;
+            for (int l = 0; l < 8; l++) sum += acc[l / 2][i][l % 2];
+            q[c][i] = sum;
+        }
+    }
+}
+#endif
 RF_VERSIONS(void, fit_sums, (const rf_work *w, long npad, int nch, double q[3][20]),
             (w, npad, nch, q))
 
@@ -1416,6 +1473,8 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
 #if defined(RF_X86_GCC) && RF_VL == 16
     if (rf_version() == 1)
         fit_sums_avx2(w, npad, w->gray ? 1 : 3, q);
+    else if (rf_version() == 0)
+        fit_sums_sse2(w, npad, w->gray ? 1 : 3, q);
     else
 #endif
         fit_sums(w, npad, w->gray ? 1 : 3, q);
@@ -1779,6 +1838,24 @@ static double off_axis_share(const double C[3][3])
     return 1 - top / tr;
 }
 
+/* The colour ratio from the sums of colour_ratio_body (S: o o^T, m m^T, o, m) */
+RF_BODY double colour_of_sums(const rf_work *w, const rf_fit *fit, const double S[18])
+{
+    long np = w->np;
+    double pad = (double)(w->npad - np), Co[3][3], Cm[3][3];
+    int h = 0;
+    for (int i = 0; i < 3; i++)
+        for (int j = i; j < 3; j++, h++) {
+            double bi = fit->coef[i][4], bj = fit->coef[j][4];
+            double mo = S[12 + i] * S[12 + j] / np;
+            double mm = (S[15 + i] - pad * bi) * (S[15 + j] - pad * bj) / np;
+            Co[i][j] = Co[j][i] = S[h] - mo;
+            Cm[i][j] = Cm[j][i] = S[6 + h] - pad * bi * bj - mm;
+        }
+    double sm_share = off_axis_share(Cm);
+    return sm_share > 0 ? off_axis_share(Co) / sm_share : NAN;
+}
+
 /* The frame's colour share over the fitted rendering's, on the pixels of the
  * last value pass (NaN when the rendering has no colour). */
 RF_BODY double colour_ratio_body(const rf_work *w, const rf_fit *fit)
@@ -1786,7 +1863,6 @@ RF_BODY double colour_ratio_body(const rf_work *w, const rf_fit *fit)
     /* one pass: the sums of o, m, o o^T and m m^T (double lanes), then
      * C = sum x x^T - n mean mean^T; the observed values are exact, the
      * means a few times the spread at most */
-    long np = w->np;
     vd acc[18];
     for (int i = 0; i < 18; i++) acc[i] = (vd){0};
     for (long k = 0; k < w->npad; k += RF_VL / 2) {
@@ -1808,24 +1884,61 @@ RF_BODY double colour_ratio_body(const rf_work *w, const rf_fit *fit)
             }
         }
     }
-    double S[18], pad = (double)(w->npad - np), Co[3][3], Cm[3][3];
+    double S[18];
     for (int i = 0; i < 18; i++) {
         S[i] = 0;
         for (int l = 0; l < RF_VL / 2; l++) S[i] += acc[i][l];
     }
-    int h = 0;
-    for (int i = 0; i < 3; i++)
-        for (int j = i; j < 3; j++, h++) {
-            double bi = fit->coef[i][4], bj = fit->coef[j][4];
-            double mo = S[12 + i] * S[12 + j] / np;
-            double mm = (S[15 + i] - pad * bi) * (S[15 + j] - pad * bj) / np;
-            Co[i][j] = Co[j][i] = S[h] - mo;
-            Cm[i][j] = Cm[j][i] = S[6 + h] - pad * bi * bj - mm;
-        }
-    double sm_share = off_axis_share(Cm);
-    return sm_share > 0 ? off_axis_share(Co) / sm_share : NAN;
+    return colour_of_sums(w, fit, S);
 }
 RF_VERSIONS(double, colour_ratio, (const rf_work *w, const rf_fit *fit), (w, fit))
+
+#if defined(RF_X86_GCC) && RF_VL == 16
+/* colour_ratio_body with AVX2: its 8 double lanes as two vectors of 4, each
+ * half on its own, the sums of the frame apart from those of the rendering
+ * (as fit_sums_avx2). Each lane adds the same values in the same order. */
+__attribute__((target("avx2"), optimize("fp-contract=off"))) static double
+colour_ratio_avx2(const rf_work *w, const rf_fit *fit)
+{
+    __m256d acc[2][18];
+    for (int h = 0; h < 2; h++) {
+        __m256d so[9], sm[9]; /* o o^T (6), o (3); m m^T, m */
+        for (int i = 0; i < 9; i++) so[i] = sm[i] = _mm256_setzero_pd();
+        for (long k = 4 * h; k < w->npad; k += 8) {
+            __m256d o[3];
+            for (int c = 0; c < 3; c++) o[c] = _mm256_cvtps_pd(_mm_load_ps(w->a[A_O0 + c] + k));
+            for (int i = 0, p = 0; i < 3; i++) {
+                so[6 + i] += o[i];
+                for (int j = i; j < 3; j++, p++) so[p] += o[i] * o[j];
+            }
+        }
+        for (long k = 4 * h; k < w->npad; k += 8) {
+            __m256d n0 = _mm256_cvtps_pd(_mm_load_ps(w->a[A_NX] + k)),
+                    n1 = _mm256_cvtps_pd(_mm_load_ps(w->a[A_NY] + k)),
+                    n2 = _mm256_cvtps_pd(_mm_load_ps(w->a[A_NZ] + k)), m[3];
+            for (int c = 0; c < 3; c++) {
+                const double *a = fit->coef[c];
+                m[c] = _mm256_cvtps_pd(_mm_load_ps(w->a[A_V0 + c] + k)) *
+                           (a[0] + a[1] * n0 + a[2] * n1 + a[3] * n2) +
+                       a[4];
+            }
+            for (int i = 0, p = 0; i < 3; i++) {
+                sm[6 + i] += m[i];
+                for (int j = i; j < 3; j++, p++) sm[p] += m[i] * m[j];
+            }
+        }
+        /* colour_ratio_body's order: o o^T, m m^T, o, m */
+        for (int i = 0; i < 6; i++) acc[h][i] = so[i], acc[h][6 + i] = sm[i];
+        for (int i = 0; i < 3; i++) acc[h][12 + i] = so[6 + i], acc[h][15 + i] = sm[6 + i];
+    }
+    double S[18];
+    for (int i = 0; i < 18; i++) {
+        S[i] = 0;
+        for (int l = 0; l < 8; l++) S[i] += acc[l / 4][i][l % 4];
+    }
+    return colour_of_sums(w, fit, S);
+}
+#endif
 
 int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
               double r, const double R0[3][3], double focal_px, int steps, rf_out *out, char *err,
@@ -1942,7 +2055,12 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
     out->colour = NAN;
     if (!w->gray) {
         if (!at_final) evaluate(t, 0, w, R, cx, cy, r, focal_px, &fit0);
-        out->colour = colour_ratio(w, &fit0);
+#if defined(RF_X86_GCC) && RF_VL == 16
+        if (rf_version() == 1)
+            out->colour = colour_ratio_avx2(w, &fit0);
+        else
+#endif
+            out->colour = colour_ratio(w, &fit0);
     }
     memcpy(out->R, R, sizeof R);
     rf_matrix_to_euler(R, out->euler);
