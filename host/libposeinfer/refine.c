@@ -184,7 +184,7 @@ struct rf_work {
     float *ja[A_COUNT]; /* the Jacobian pass's samples (jac_samples), within buf */
     int32_t *off;       /* texel offsets */
     int32_t *idx;       /* the Jacobian pass's samples (jac_samples) */
-    long nact;          /* their count when the lookups chose them, else -1 */
+    long nact;          /* their count (the lookups choose them) */
     void *buf;
     size_t cap;           /* samples the arrays hold */
     long np, npad;        /* samples of the current level, and padded */
@@ -809,7 +809,7 @@ gather_pass_avx512(rf_work *w, long n, long np, const void *restrict tex, int pa
             any = _mm512_or_si512(
                 any, _mm512_or_si512(_mm512_castps_si512(du[c]), _mm512_castps_si512(dv[c])));
         }
-        /* active_samples' choice: a derivative nonzero (-0 is 0), not padding */
+        /* the Jacobian's samples: a derivative nonzero (-0 is 0), not padding */
         __mmask16 act = _mm512_test_epi32_mask(any, nosign);
         if (k + 16 > np) act &= (__mmask16)(np > k ? (1u << (np - k)) - 1 : 0);
         if (act) {
@@ -911,7 +911,7 @@ gather_pass_avx2(rf_work *w, long n, long np, const void *restrict tex, int pair
             any = _mm256_or_si256(
                 any, _mm256_or_si256(_mm256_castps_si256(du[c]), _mm256_castps_si256(dv[c])));
         }
-        /* active_samples' choice: a derivative nonzero (-0 is 0), not padding */
+        /* the Jacobian's samples: a derivative nonzero (-0 is 0), not padding */
         unsigned act = ~(unsigned)_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(
                            _mm256_and_si256(any, nosign), _mm256_setzero_si256()))) &
                        0xff;
@@ -933,23 +933,37 @@ gather_pass_avx2(rf_work *w, long n, long np, const void *restrict tex, int pair
 }
 #endif
 
-/* The bilinear lookups (sample's second half): values and their derivatives
- * along the texel axes, per channel. tr: texels a row of tiles; pairs: the
- * level as pairs (tr: entries a band), else NULL. */
-static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex,
+/* The bilinear lookups (sample's second half): the texture's values for
+ * every sample, and for the samples with a derivative along the texel axes
+ * (the Jacobian's: jac_samples) their values and derivatives per channel,
+ * compressed into w->ja with their indices in w->idx; returns their count.
+ * Where the texture is flat over a sample's 2 x 2 texels (most of the
+ * paper's textures: bars of one colour) its derivatives are exactly 0 in
+ * every channel, and so is all it adds to J^T J, J^T A and J^T e: the
+ * Jacobian pass skips it. tr: texels a row of tiles; pairs: the level as
+ * pairs (tr: entries a band), else NULL. The AVX-512 and AVX2 versions
+ * (gather_pass_avx512, gather_pass_avx2) do the same lane by lane. */
+static long gather_pass(rf_work *w, long n, long np, const uint16_t *restrict tex,
                         const uint64_t *restrict pairs, int tr, float scale)
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
-    float *restrict v0 = w->a[A_V0], *restrict v1 = w->a[A_V1], *restrict v2 = w->a[A_V2];
-    float *restrict u0 = w->a[A_DU0], *restrict u1 = w->a[A_DU1], *restrict u2 = w->a[A_DU2];
-    float *restrict e0 = w->a[A_DV0], *restrict e1 = w->a[A_DV1], *restrict e2 = w->a[A_DV2];
-    float *restrict vv[3] = {v0, v1, v2}, *restrict uu[3] = {u0, u1, u2},
-                    *restrict ee[3] = {e0, e1, e2};
-    for (int c = 0; c < 3; c++) {
-        float *restrict val = vv[c], *restrict du = uu[c], *restrict dv = ee[c];
-        for (long k = 0; k < n; k++) {
-            int32_t o = off[k];
+    long m = 0;
+    for (long k = 0; k < n; k++) {
+        int32_t o = off[k];
+        if (k + 32 < n) {
+            int32_t f = off[k + 32];
+            if (pairs) {
+                __builtin_prefetch(pairs + f);
+                __builtin_prefetch(pairs + f + RF_PAIR_DY(f, tr));
+            } else {
+                __builtin_prefetch(tex + (long)f * 4);
+                __builtin_prefetch(tex + ((long)f + RF_TILE_DY(f, tr)) * 4);
+            }
+        }
+        float val[3], du[3], dv[3];
+        uint32_t any = 0;
+        for (int c = 0; c < 3; c++) {
             float a00, a10, a01, a11;
             if (pairs) {
                 uint64_t p0 = pairs[o] >> 10 * c, p1 = pairs[o + RF_PAIR_DY(o, tr)] >> 10 * c;
@@ -967,11 +981,26 @@ static void gather_pass(rf_work *w, long n, const uint16_t *restrict tex,
             }
             float a = fx[k], b = fy[k];
             float top = a00 + a * (a10 - a00), bot = a01 + a * (a11 - a01);
-            val[k] = top + b * (bot - top);
-            du[k] = (a10 - a00) + b * ((a11 - a01) - (a10 - a00));
-            dv[k] = bot - top;
+            val[c] = top + b * (bot - top);
+            du[c] = (a10 - a00) + b * ((a11 - a01) - (a10 - a00));
+            dv[c] = bot - top;
+            w->a[A_V0 + c][k] = val[c];
+            uint32_t bu, bv;
+            memcpy(&bu, &du[c], 4);
+            memcpy(&bv, &dv[c], 4);
+            any |= (bu | bv) & 0x7fffffff; /* -0 is 0 */
+        }
+        if (any && k < np) {
+            w->idx[m] = (int32_t)k;
+            for (int c = 0; c < 3; c++) {
+                w->ja[A_V0 + c][m] = val[c];
+                w->ja[A_DU0 + c][m] = du[c];
+                w->ja[A_DV0 + c][m] = dv[c];
+            }
+            m++;
         }
     }
+    return m;
 }
 
 /* A gray frame sees the texture as its luma, in channel 0: its three
@@ -1425,7 +1454,6 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     w->gp[GEO_KW] = (float)(tw / (2 * M_PI));
     w->gp[GEO_KH] = (float)(th / M_PI);
     geometry_pass(w, npad, Rf, w->gp, tw, th, tr, pairs != NULL);
-    w->nact = -1;
 #ifdef RF_X86_GCC
     if (rf_version() == 2)
         w->nact = gather_pass_avx512(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
@@ -1435,39 +1463,15 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
                                    tr, t->scale[lev]);
     else
 #endif
-    {
-        /* ask for every sample's two texel rows ahead: after the network has
-         * run the texture is mostly out of the caches */
-        for (long k = 0; k < np; k++) {
-            int32_t o = w->off[k];
-            if (pairs) {
-                __builtin_prefetch(pairs + o);
-                __builtin_prefetch(pairs + o + RF_PAIR_DY(o, tr));
-            } else {
-                __builtin_prefetch(tex + (long)o * 4);
-                __builtin_prefetch(tex + ((long)o + RF_TILE_DY(o, tr)) * 4);
-            }
-        }
-        gather_pass(w, npad, tex, pairs, tr, t->scale[lev]);
-    }
+        w->nact = gather_pass(w, npad, np, tex, pairs, tr, t->scale[lev]);
     if (w->gray) {
         luma_pass(w->a, A_V0, npad); /* the fit's values */
-        if (w->nact >= 0) {
-            /* the Jacobian's samples, which the lookups chose and wrote */
-            for (int m = A_V0; m <= A_DV0; m += 3) luma_pass(w->ja, m, w->nact);
-        } else {
-            /* the derivatives, from which jac_samples picks the Jacobian's
-             * samples afterwards (active_samples): the samples the AVX-512
-             * lookups choose before this pass, since active_samples also
-             * reads channels 1 and 2, which this pass leaves alone (and
-             * channel 0's luma derivative is nonzero where its own was and
-             * the others' are 0) */
-            luma_pass(w->a, A_DU0, npad);
-            luma_pass(w->a, A_DV0, npad);
-        }
+        /* the Jacobian's samples, which the lookups chose (a derivative of
+         * any channel nonzero: where the luma's is) and wrote */
+        for (int m = A_V0; m <= A_DV0; m += 3) luma_pass(w->ja, m, w->nact);
     }
     /* the padding takes no part: no texture there */
-    for (int m = A_V0; m <= (w->nact < 0 ? A_DV2 : A_V2); m++)
+    for (int m = A_V0; m <= A_V2; m++)
         for (long k = np; k < npad; k++) w->a[m][k] = 0;
     double q[3][20], oo[3];
 #if defined(RF_X86_GCC) && RF_VL == 16
@@ -1670,31 +1674,6 @@ RF_VERSIONS(void, jac_sums1,
              const float a[3][5], double out[RF_JSUMS]),
             (q, npad, R, kd, gp, a, out))
 
-/* The samples whose rendering has a gradient, copied into w->ja (padded with
- * zeros to RF_LANES); returns their count, padded. Where the texture is flat
- * over a sample's 2 x 2 texels (most of the paper's textures: bars of one
- * colour) its derivatives are exactly 0 in every channel, and so is all it
- * adds to J^T J, J^T A and J^T e: the Jacobian pass skips it. */
-RF_BODY long active_samples_body(const rf_work *w, int32_t *idx)
-{
-    long m = 0;
-    for (long k = 0; k < w->npad; k += RF_VL) {
-        /* nonzero where any derivative is (the sign bit masked off: -0 is 0) */
-        vi any =
-            ((vi)vload(w->a[A_DU0] + k) | (vi)vload(w->a[A_DU1] + k) | (vi)vload(w->a[A_DU2] + k) |
-             (vi)vload(w->a[A_DV0] + k) | (vi)vload(w->a[A_DV1] + k) | (vi)vload(w->a[A_DV2] + k)) &
-            0x7fffffff;
-        vi z = {0};
-        if (!memcmp(&any, &z, sizeof z)) continue;
-        for (int l = 0; l < RF_VL; l++) {
-            idx[m] = (int32_t)(k + l);
-            m += any[l] != 0;
-        }
-    }
-    return m;
-}
-RF_VERSIONS(long, active_samples, (const rf_work *w, int32_t *idx), (w, idx))
-
 #ifdef RF_X86_GCC
 /* dst[k] = src[idx[k]], k < m (idx padded to RF_LANES with valid indices) */
 __attribute__((target("avx512f"))) static void pick_avx512(float *dst, const float *src,
@@ -1714,28 +1693,28 @@ __attribute__((target("avx2"))) static void pick_avx2(float *dst, const float *s
 }
 #endif
 
+/* The Jacobian's samples (those the lookups chose, w->idx), copied into
+ * w->ja beside the values and derivatives the lookups wrote there, padded
+ * with zeros to RF_LANES; returns their count, padded. */
 static long jac_samples(rf_work *w)
 {
-    /* the arrays the Jacobian reads: all channels', or a gray frame's
-     * channel 0 (jac_sums1): the geometry's 6, then each channel's observed
-     * value, then each channel's value and derivatives, which the lookups
-     * may have written (w->nact) */
+    /* the arrays the Jacobian reads beside those: all channels', or a gray
+     * frame's channel 0 (jac_sums1): the geometry's 6, then each channel's
+     * observed value */
     enum { KEEP_GEO = 6 };
-    static const int keep[2][18] = {{A_NX, A_NY, A_NZ, A_X, A_Y, A_T, A_O0, A_O1, A_O2, A_V0, A_V1,
-                                     A_V2, A_DU0, A_DU1, A_DU2, A_DV0, A_DV1, A_DV2},
-                                    {A_NX, A_NY, A_NZ, A_X, A_Y, A_T, A_O0, A_V0, A_DU0, A_DV0}};
-    int picked = w->nact < 0, g = w->gray != 0, nch = g ? 1 : 3;
-    long m = picked ? active_samples(w, w->idx) : w->nact;
+    static const int keep[2][6] = {{A_NX, A_NY, A_NZ, A_X, A_Y, A_T}, {A_O0, A_O1, A_O2}};
+    int nch = w->gray ? 1 : 3;
+    long m = w->nact;
     long mp = (m + RF_LANES - 1) / RF_LANES * RF_LANES;
-    int NK = KEEP_GEO + nch + (picked ? 3 * nch : 0);
+    int NK = KEEP_GEO + nch;
     int32_t *idx = w->idx;
     for (long k = m; k < mp; k++) idx[k] = 0; /* read, then zeroed below */
-    if (!picked)
-        for (int i = A_V0; i <= A_DV2; i++)
-            for (long k = m; k < mp; k++) w->ja[i][k] = 0;
+    for (int i = A_V0; i <= A_DV2; i++)
+        for (long k = m; k < mp; k++) w->ja[i][k] = 0;
     for (int i = 0; i < NK; i++) {
-        const float *src = w->a[keep[g][i]];
-        float *dst = w->ja[keep[g][i]];
+        int a = keep[i / KEEP_GEO][i % KEEP_GEO];
+        const float *src = w->a[a];
+        float *dst = w->ja[a];
 #ifdef RF_X86_GCC
         if (rf_version() == 2)
             pick_avx512(dst, src, idx, mp);
