@@ -941,8 +941,10 @@ gather_pass_avx2(rf_work *w, long n, long np, const void *restrict tex, int pair
  * paper's textures: bars of one colour) its derivatives are exactly 0 in
  * every channel, and so is all it adds to J^T J, J^T A and J^T e: the
  * Jacobian pass skips it. tr: texels a row of tiles; pairs: the level as
- * pairs (tr: entries a band), else NULL. The AVX-512 and AVX2 versions
- * (gather_pass_avx512, gather_pass_avx2) do the same lane by lane. */
+ * pairs (tr: entries a band), else NULL. On x86-64 each version has its
+ * own, which does the same lane by lane: gather_pass_avx512,
+ * gather_pass_avx2, gather_pass_sse2 (the baseline). */
+#ifndef RF_X86_GCC
 static long gather_pass(rf_work *w, long n, long np, const uint16_t *restrict tex,
                         const uint64_t *restrict pairs, int tr, float scale)
 {
@@ -1002,6 +1004,102 @@ static long gather_pass(rf_work *w, long n, long np, const uint16_t *restrict te
     }
     return m;
 }
+#else
+/* gather_pass_avx2 for the baseline (SSE2), 4 samples at a time: no gathers,
+ * each texel entry loaded on its own; the lanes of the Jacobian's samples
+ * copied one by one. */
+__attribute__((optimize("fp-contract=off"))) static long
+gather_pass_sse2(rf_work *w, long n, long np, const uint16_t *restrict tex,
+                 const uint64_t *restrict pairs, int tr, float scale)
+{
+    const int32_t *restrict off = w->off;
+    const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
+    const long long *base = pairs ? (const long long *)pairs : (const long long *)tex;
+    const __m128 sc = _mm_set1_ps(scale);
+    const __m128i ten = _mm_set1_epi32(0x3ff), word = _mm_set1_epi32(0xffff),
+                  nosign = _mm_set1_epi32(0x7fffffff);
+    long m = 0;
+    for (long k = 0; k < n; k += 4) {
+        if (k + 32 < n)
+            for (int l = 0; l < 4; l++) {
+                int32_t o = off[k + 32 + l];
+                const long long *p = base + o;
+                __builtin_prefetch(p);
+                __builtin_prefetch(p + (pairs ? RF_PAIR_DY(o, tr) : RF_TILE_DY(o, tr)));
+            }
+        __m128 v[3][4]; /* channel c's texels (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1) */
+        /* the entries at o[l] + d[l] of the 4 samples: their low and high 32 bits */
+#define RF_LOAD4(dst, d)                                                                  \
+    do {                                                                                  \
+        __m128 a_ = _mm_castsi128_ps(                                                     \
+                   _mm_set_epi64x(base[off[k + 1] + (d)[1]], base[off[k] + (d)[0]])),     \
+               b_ = _mm_castsi128_ps(                                                     \
+                   _mm_set_epi64x(base[off[k + 3] + (d)[3]], base[off[k + 2] + (d)[2]])); \
+        dst[0] = _mm_castps_si128(_mm_shuffle_ps(a_, b_, 0x88));                          \
+        dst[1] = _mm_castps_si128(_mm_shuffle_ps(a_, b_, 0xdd));                          \
+    } while (0)
+        if (pairs) {
+            int32_t d[2][4];
+            for (int l = 0; l < 4; l++) d[0][l] = 0, d[1][l] = RF_PAIR_DY(off[k + l], tr);
+            for (int r = 0; r < 2; r++) {
+                __m128i g[2]; /* the left and right texels */
+                RF_LOAD4(g, d[r]);
+                for (int c = 0; c < 3; c++)
+                    for (int x = 0; x < 2; x++)
+                        v[c][2 * r + x] = _mm_mul_ps(
+                            _mm_cvtepi32_ps(_mm_and_si128(_mm_srli_epi32(g[x], 10 * c), ten)), sc);
+            }
+        } else {
+            int32_t d[4][4];
+            for (int l = 0; l < 4; l++) {
+                int32_t o = off[k + l], dx = RF_TILE_DX(o), dy = RF_TILE_DY(o, tr);
+                d[0][l] = 0, d[1][l] = dx, d[2][l] = dy, d[3][l] = dy + dx;
+            }
+            for (int q = 0; q < 4; q++) {
+                __m128i g[2]; /* B | G << 16 and R of each texel */
+                RF_LOAD4(g, d[q]);
+                __m128i ch[3] = {_mm_and_si128(g[0], word), _mm_srli_epi32(g[0], 16),
+                                 _mm_and_si128(g[1], word)};
+                for (int c = 0; c < 3; c++) v[c][q] = _mm_mul_ps(_mm_cvtepi32_ps(ch[c]), sc);
+            }
+        }
+#undef RF_LOAD4
+        __m128 a = _mm_load_ps(fx + k), b = _mm_load_ps(fy + k);
+        float out[3][3][4]; /* val, du, dv per channel */
+        __m128i any = _mm_setzero_si128();
+        for (int c = 0; c < 3; c++) {
+            __m128 a00 = v[c][0], a10 = v[c][1], a01 = v[c][2], a11 = v[c][3];
+            __m128 d0 = _mm_sub_ps(a10, a00), d1 = _mm_sub_ps(a11, a01);
+            __m128 top = _mm_add_ps(a00, _mm_mul_ps(a, d0)),
+                   bot = _mm_add_ps(a01, _mm_mul_ps(a, d1));
+            __m128 val = _mm_add_ps(top, _mm_mul_ps(b, _mm_sub_ps(bot, top)));
+            __m128 du = _mm_add_ps(d0, _mm_mul_ps(b, _mm_sub_ps(d1, d0)));
+            __m128 dv = _mm_sub_ps(bot, top);
+            _mm_store_ps(w->a[A_V0 + c] + k, val);
+            _mm_storeu_ps(out[c][0], val);
+            _mm_storeu_ps(out[c][1], du);
+            _mm_storeu_ps(out[c][2], dv);
+            any = _mm_or_si128(any, _mm_or_si128(_mm_castps_si128(du), _mm_castps_si128(dv)));
+        }
+        /* the Jacobian's samples: a derivative nonzero (-0 is 0), not padding */
+        unsigned act = ~(unsigned)_mm_movemask_ps(_mm_castsi128_ps(
+                           _mm_cmpeq_epi32(_mm_and_si128(any, nosign), _mm_setzero_si128()))) &
+                       0xf;
+        if (k + 4 > np) act &= np > k ? (1u << (np - k)) - 1 : 0;
+        for (int l = 0; act; l++, act >>= 1) {
+            if (!(act & 1)) continue;
+            w->idx[m] = (int32_t)(k + l);
+            for (int c = 0; c < 3; c++) {
+                w->ja[A_V0 + c][m] = out[c][0][l];
+                w->ja[A_DU0 + c][m] = out[c][1][l];
+                w->ja[A_DV0 + c][m] = out[c][2][l];
+            }
+            m++;
+        }
+    }
+    return m;
+}
+#endif
 
 /* A gray frame sees the texture as its luma, in channel 0: its three
  * channels are equal, so the passes after this one take channel 0 alone and
@@ -1462,8 +1560,10 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
         w->nact = gather_pass_avx2(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
                                    tr, t->scale[lev]);
     else
+        w->nact = gather_pass_sse2(w, npad, np, tex, pairs, tr, t->scale[lev]);
+#else
+    w->nact = gather_pass(w, npad, np, tex, pairs, tr, t->scale[lev]);
 #endif
-        w->nact = gather_pass(w, npad, np, tex, pairs, tr, t->scale[lev]);
     if (w->gray) {
         luma_pass(w->a, A_V0, npad); /* the fit's values */
         /* the Jacobian's samples, which the lookups chose (a derivative of
