@@ -21,7 +21,10 @@
 #include "synth_sphere.h"
 
 #define NTEX    3
-#define NFRAMES 3 /* two colour frames, one gray */
+/* three colour frames, one gray; the third colour frame's centre (where the
+ * padding of the sample arrays samples the texture) on a bar's edge, where
+ * the texture has a gradient at every level: the padding must not count */
+#define NFRAMES 4
 
 /* The texture scaled to w x w/2 (nearest texel). */
 static uint8_t *scaled(const uint8_t *t, int w)
@@ -78,7 +81,8 @@ static int same_bits(const answers *a, const answers *b)
 static void versions_agree(void **state)
 {
     (void)state;
-    const double poses[NFRAMES][3] = {{6.0, -11.0, 18.5}, {-27.0, 24.0, -4.0}, {12.0, 3.0, -20.0}};
+    const double poses[NFRAMES][3] = {
+        {6.0, -11.0, 18.5}, {-27.0, 24.0, -4.0}, {0.0, -14.06, 10.0}, {12.0, 3.0, -20.0}};
     const int widths[NTEX] = {1024, 2048, 4096};
     uint8_t *tex = make_texture(7), *frames[NFRAMES];
     rf_texture *t[NTEX];
