@@ -40,7 +40,12 @@
  * otherwise let the compiler fuse there too), so that those two give the same
  * bits and the AVX-512 version differs from them by rounding (docs/refine.md,
  * cost). A loop is written once, as NAME_body, and RF_VERSIONS makes NAME,
- * which calls the version rf_version picks. */
+ * which calls the version rf_version picks. Where GCC's generic vectors
+ * split into too many registers and spill (the lookups, the fit's and the
+ * colour ratio's sums), a version has its own loop with the same operations
+ * lane by lane: NAME_avx512, NAME_avx2, NAME_sse2 (the baseline); the
+ * versions' test (test_refine_versions) holds the AVX2 and baseline ones to
+ * the same bits. */
 #define RF_BODY static inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define RF_X86_GCC 1
