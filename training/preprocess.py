@@ -615,6 +615,13 @@ def _tukey_weights(res, p):
     return np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
 
 
+def _tukey_floor_weights(res, p):
+    """Tukey's biweight at tukey_c times the floor of the robust scale (sigma_min_px), for the
+    refit's last round (_outermost)."""
+    u = np.asarray(res, dtype=np.float64) / (p["tukey_c"] * p["sigma_min_px"])
+    return np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
+
+
 def _fit_rays(cands, dirs, ox, oy, cx, cy, r, p):
     """Robust circle through one edge candidate per ray: each iteration takes, on every ray, the
     candidate nearest the current circle, weights it by Tukey's biweight of its distance to that
@@ -761,8 +768,14 @@ def _outermost(rays, peaks, dirs, fit, p):
     (farther out, a post or the backdrop's clutter), taken at the first round and once more
     after half the rounds, about the circle the fit has reached then (a circle pulled inwards
     by the bands reaches the rim beyond the first band's reach; taken every round or every
-    other round, it creeps out onto the backdrop's edges). Returns (cx, cy, r), the circle
-    unchanged when the refit fails."""
+    other round, it creeps out onto the backdrop's edges). The last round weighs the residuals
+    at the floor of the robust scale (sigma_min_px, _tukey_floor_weights): where the limb darkens
+    to the backdrop's level on an arc, about a third of the rays find only its shading 1-3 px
+    inside the rim; they widen the median-based scale enough to keep their weight, and the circle
+    leans inwards on that arc (0.5-0.9 px off centre on the ray-caster's rig frames). By then
+    the circle lies within the edges' noise of the rays that find the rim, so at the floor scale
+    those 1.2 px (tukey_c sigma_min_px) or more inside it drop out; fewer than 8 rays left: the
+    previous round's circle. Returns (cx, cy, r), the circle unchanged when the refit fails."""
     cx, cy, r = fit[0], fit[1], fit[2]
     bad = rays[2]
     peak, pos = peaks
@@ -792,7 +805,17 @@ def _outermost(rays, peaks, dirs, fit, p):
             for px, py in zip(xs, ys):
                 px, py = px - x, py - y
                 res.append(math.sqrt(px * px + py * py) - nr)
-        f = _kasa(xs, ys, _tukey_weights(res, p))
+        if it == p["irls_iters"] - 1:
+            # the last round at the floor scale: the circle now lies within the edges' noise
+            # of the rays that find the rim, so a ray whose candidate is the limb's shading or a
+            # band 1.2 px (tukey_c sigma_min_px) or more inside it drops out instead of pulling
+            # the circle inwards; fewer than 8 rays left: the previous round's circle
+            wts = _tukey_floor_weights(res, p)
+            if sum(1 for v in wts if v > 0.0) < 8:
+                break
+        else:
+            wts = _tukey_weights(res, p)
+        f = _kasa(xs, ys, wts)
         if f is None:
             return cx, cy, r
         x, y, nr = f

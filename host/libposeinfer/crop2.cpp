@@ -1625,8 +1625,10 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
 // the candidates nearest it leans towards them): on each ray the outermost
 // candidate from 1.5 inlier_px inside the current circle to 2 inlier_px
 // outside, taken at the fit's first round and again at round irls_iters / 2
-// about the circle reached then, one robust fit through these (the circle as
-// it is when either pick has fewer than 8 rays or the fit fails); then that
+// about the circle reached then, one robust fit through these, its last round
+// at the floor scale (sigma_min_px) (the circle as it is when either pick has
+// fewer than 8 rays or the fit fails; the previous round's when the last round
+// would keep fewer than 8 rays); then that
 // circle's radius moved to the rim: on each ray the peak nearest where the
 // ray crosses it, its outer half-maximum less the edge half-width, the median
 // of their distances from the circle added to its radius.
@@ -1676,7 +1678,20 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
             res.resize(xs.size());
             residuals(xs.data(), ys.data(), xs.size(), x, y, nr, res.data());
         }
-        robust_weights(res, p, ares, wts);
+        if (it == p->irls_iters - 1) {
+            // the last round at the floor scale (preprocess.py _tukey_floor_weights):
+            // the circle now lies within the edges' noise of the rays that find the
+            // rim, so a ray whose candidate is the limb's shading or a band tukey_c
+            // sigma_min_px or more inside it drops out instead of pulling the circle
+            // inwards; fewer than 8 rays left: the previous round's circle
+            wts.resize(res.size());
+            tukey_weights(res.data(), res.size(), p->tukey_c * p->sigma_min_px, wts.data());
+            size_t kept = 0;
+            for (double v : wts) kept += v > 0.0;
+            if (kept < 8) break;
+        } else {
+            robust_weights(res, p, ares, wts);
+        }
         if (!kasa(xs, ys, wts, &x, &y, &nr)) {
             fitted = false;
             break;

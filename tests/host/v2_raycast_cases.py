@@ -25,9 +25,9 @@ def params():
     return pp.params(read_metadata(MODEL)["spherepose.preprocess"], model=MODEL.name)
 
 
-def render_frames(folder, cases):
-    """cases: (family, index[, expected file name]) of seed 0. Returns [(path, true circle in
-    OpenCV coordinates)]."""
+def render_frames(folder, cases, seed=0):
+    """cases: (family, index[, expected file name]) of `seed` (0: build/realscene-final's).
+    Returns [(path, true circle in OpenCV coordinates)]."""
     sys.path.insert(0, str(REPO / "bench"))
     from raycast import camera, frames as rc_frames, render
     tex_path = Path(folder) / "Texture_3_color.png"
@@ -36,7 +36,7 @@ def render_frames(folder, cases):
     cam = camera.load_camera(None)
     out = []
     for family, index, *want in cases:
-        name, png, truth = rc_frames.make_frame(family, 0, index, cam, tex)
+        name, png, truth = rc_frames.make_frame(family, seed, index, cam, tex)
         assert not want or name == want[0], (family, index, name)
         path = Path(folder) / f"{family}_{name}"
         path.write_bytes(png)

@@ -180,3 +180,42 @@ def test_undistort_puts_the_circle_back():
     # no distortion: the frame unchanged
     img = rig(41, effects=False)
     assert pp.undistort(img, {"width": W, "height": H}) is img
+
+
+def _outermost_case(inner):
+    """_outermost's inputs for a circle at (100, 100) r 50: every ray one candidate, 0.3 px
+    in or out of the circle (alternately), but for the rays in `inner` (ray index -> distance
+    inside it)."""
+    p = pp.DEFAULTS_V2
+    dirs = pp._ray_dirs(p["rays"])
+    k = len(dirs)
+    pos = np.array([[50.0 - inner.get(i, 0.3 * (-1) ** i)] for i in range(k)])
+    peaks = (np.ones((k, 1), bool), pos)
+    rays = (None, None, np.zeros(k, bool))
+    return rays, peaks, dirs, (100.0, 100.0, 50.0, 0.8), p
+
+
+def test_refit_last_round_at_the_floor_scale(monkeypatch):
+    # an arc of a quarter of the rays finds the limb's shading 1.3-2.1 px inside the rim (the
+    # median-based scale keeps their weight: the circle 0.42 px off); the last round at the
+    # floor scale drops them (0.23 px)
+    inner = {i: 1.3 + 0.2 * (i % 5) for i in range(30)}
+    case = _outermost_case(inner)
+    cx, cy, r = pp._outermost(*case)
+    floor_err = math.hypot(cx - 100.0, cy - 100.0)
+    monkeypatch.setattr(pp, "_tukey_floor_weights", pp._tukey_weights)
+    cx, cy, r = pp._outermost(*case)
+    assert floor_err < 0.3 < math.hypot(cx - 100.0, cy - 100.0), floor_err
+    # fewer than 8 rays left at the floor scale: the previous round's circle (not the first)
+    fits = []
+    kasa = pp._kasa
+    monkeypatch.setattr(pp, "_kasa", lambda x, y, w: fits.append(kasa(x, y, w)) or fits[-1])
+    monkeypatch.setattr(pp, "_tukey_floor_weights", lambda res, p: [0.0] * len(res))
+    cx, cy, r = pp._outermost(*case)
+    assert len(fits) == pp.DEFAULTS_V2["irls_iters"] - 1
+    assert (cx, cy, r) == (100.0 + fits[-1][0], 100.0 + fits[-1][1], fits[-1][2])
+    # the C++ twin does the same (host/libposeinfer/crop2.cpp final_circle)
+    src = (Path(__file__).resolve().parents[2] / "host/libposeinfer/crop2.cpp").read_text()
+    last = re.search(r"if \(it == p->irls_iters - 1\) \{.*?tukey_weights\(res\.data\(\), res\.size\(\), "
+                     r"p->tukey_c \* p->sigma_min_px, wts\.data\(\)\);.*?if \(kept < 8\) break;", src, re.S)
+    assert last

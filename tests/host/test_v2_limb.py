@@ -1,0 +1,38 @@
+"""sphere-crop-v2's refit weighs its last round at the floor of the robust scale
+(training/preprocess.py _outermost, _tukey_floor_weights). Two frames of the independent
+ray-caster (bench/raycast) where the limb darkens to the backdrop's level on an arc and the rays
+there find only its shading 1-3 px inside the rim: `edge` frame 15 of seed 0 (as in
+build/realscene-final) was 0.51 px off centre, `rig` frame 39 of seed 121 0.54 px; with the last
+round at the floor scale those rays drop out and both are within 0.5 px and 0.5 % of the truth
+(0.46 and 0.49 px), and the C runtime gives the same circles as Python."""
+import cv2
+import pytest
+
+from training import preprocess as pp
+from v2_raycast_cases import CAMERA, assert_same_circles_in_c, circle_error, params, render_frames
+
+FRAMES = [(("edge", 15, "6.643_15.297_-26.329.png"), 0), (("rig", 39, "2.261_0.299_9.715.png"), 121)]
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("limb")
+    return [f for case, seed in FRAMES for f in render_frames(folder, [case], seed)]
+
+
+def test_last_round_at_the_floor_scale(frames, monkeypatch):
+    p = params()
+    imgs = [cv2.imread(str(path), cv2.IMREAD_COLOR) for path, _ in frames]
+    for img, (path, truth) in zip(imgs, frames):
+        ec, er = circle_error(pp.find_sphere(img, p, CAMERA), truth)
+        assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
+    # the last round at the median-based scale, as every other round: both off centre (what
+    # this guards)
+    monkeypatch.setattr(pp, "_tukey_floor_weights", pp._tukey_weights)
+    for img, (path, truth) in zip(imgs, frames):
+        ec, _ = circle_error(pp.find_sphere(img, p, CAMERA), truth)
+        assert ec > 0.5, (path.name, ec)
+
+
+def test_same_circles_in_c(frames, tmp_path, poseinfer, timeout_scale):
+    assert_same_circles_in_c(poseinfer, [path for path, _ in frames], tmp_path, timeout_scale)
