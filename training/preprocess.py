@@ -116,6 +116,19 @@ DEFAULTS = DEFAULTS_V2
 # parameter, with no default); host/libposeinfer/crop2.cpp has the same (grow_rounds).
 GROW_ROUNDS = 8
 
+# A second circle of the sphere's size is a second sphere (an error) unless its inside is flat
+# where the sphere's darkens towards its rim (_limb_shading: a lit sphere's limb is darker than
+# its middle, and its texture's dark bands reach the rim; a disk of clutter or a pattern of the
+# backdrop is as bright at its edge as inside): its shading above 1 less than LIMB_SHARE of the
+# sphere's, when the sphere's is at least LIMB_MIN (a sphere over-exposed to its rim shows no
+# shading, and then nothing is told apart). On the development frames (the ray-caster's
+# `refuse` family, seeds 0 and 136-140: 198 second spheres in 191 frames) the first sphere's
+# shading is 1.33-3.4 and a second sphere's shading above 1 at least 0.53 of the first's; a
+# clutter disk's and a checkerboard circle's 0.04 and 0.11 of it. Constants of the algorithm, not
+# model parameters; host/libposeinfer/crop2.cpp has the same (limb_share, limb_min).
+LIMB_SHARE = 0.25
+LIMB_MIN = 1.25
+
 
 class NoSphere(ValueError):
     """The frame holds nothing that looks like the sphere (or not one sphere, whole)."""
@@ -731,15 +744,19 @@ def _fine(img, dirs, cand, s, p):
     return cx, cy, r, _support(img, dirs, cx, cy, r, p)
 
 
-def _grow(img, dirs, fit, p):
+def _grow(img, dirs, fit, p, inward=False):
     """A weakly supported fit tried again from larger circles: where the limb is dark against a
     dark backdrop, the fit can settle on a black texture band just inside it (a circle 2-5 %
     small, off towards the bright side), whose edges are stronger than the rim's. From the same
     centre with the radius fine_window_px and 2 fine_window_px larger, fine_passes - 1 passes
     (as after the first) each; the best supported of the fit and these (the fit on ties) is
-    kept. Returns (cx, cy, r, support)."""
+    kept. Inward (a fit that was no sphere at all, see _find_sphere_v2): then also from the
+    radius fine_window_px and 2 fine_window_px smaller (after the larger ones; the first on
+    ties): where the backdrop's noise or clutter makes edges all along the rays, the fit can
+    settle a few pixels outside the rim on one side, farther from the rim's edges than the
+    passes' window reaches. Returns (cx, cy, r, support)."""
     best = fit
-    for k in (1, 2):
+    for k in (1, 2, -1, -2) if inward else (1, 2):
         cx, cy, r = fit[0], fit[1], fit[2] + k * p["fine_window_px"]
         ok = True
         for _ in range(p["fine_passes"] - 1):
@@ -901,6 +918,38 @@ def _support(img, dirs, cx, cy, r, p):
     return int((ok.any(axis=1) & ~bad).sum()) / len(dirs)
 
 
+def _limb_shading(img, dirs, cx, cy, r, p):
+    """How much brighter a circle's inside is than its edge: over the rays from (cx, cy) whose
+    samples all lie in the frame, the median of each ray's brightest sample (largest channel,
+    bilinear) from r/4 to 3r/4 (every pixel: r/4 + i) over the median of its brightest from
+    support_flank_px to 2 inlier_px inside the circle (the support's inner flank, every half
+    pixel), the latter at least 1. None with fewer than 8 such rays (too little of the circle
+    in the frame to tell)."""
+    inner = [r * 0.25 + i for i in range(int(math.floor(r * 0.5)) + 1)]
+    edge = [r - 0.5 * i for i in range(int(math.ceil(4.0 * p["inlier_px"])),
+                                       int(math.floor(2.0 * p["support_flank_px"])) + 1)]
+    if not edge:
+        return None
+    rho = np.array(inner + edge, np.float64)
+    v = _sample(img, cx + rho[None, :] * dirs[:, 0:1], cy + rho[None, :] * dirs[:, 1:2]).max(axis=2)
+    ok = ~np.isnan(v).any(axis=1)
+    if int(ok.sum()) < 8:
+        return None
+    v = v[ok]
+    ni = len(inner)
+    return _median(v[:, :ni].max(axis=1).tolist()) / max(1.0, _median(v[:, ni:].max(axis=1).tolist()))
+
+
+def _flat(img, dirs, a, b, p):
+    """Whether circle b's inside is flat where sphere a's darkens towards its rim (see LIMB_SHARE):
+    then b is no second sphere."""
+    sa = _limb_shading(img, dirs, a[0], a[1], a[2], p)
+    if sa is None or not sa >= LIMB_MIN:
+        return False
+    sb = _limb_shading(img, dirs, b[0], b[1], b[2], p)
+    return sb is not None and sb - 1.0 < LIMB_SHARE * (sa - 1.0)
+
+
 def rim_outside(cx, cy, r, h, w, k=256):
     """Fraction of the circle's rim outside the frame [0, w - 1] x [0, h - 1] (k points)."""
     d = _ray_dirs(k)
@@ -940,11 +989,16 @@ def _find_sphere_v2(frame, p, camera=None):
         # the best supported fit (first on ties), when weakly supported, tried from larger circles
         ib = min(range(len(fits)), key=lambda i: (-fits[i][3], i))
         # again from the circle it moved to, while that is better supported and still weak, at
-        # most GROW_ROUNDS tries
+        # most GROW_ROUNDS tries. A fit below min_support (no sphere: the frame would be
+        # refused) is tried from smaller circles too, in every try; a sphere's weak fit is not:
+        # a smaller circle a few rays better supported is as often a texture band inside a dark
+        # limb as the rim (tried on every weak fit, a `shifts` frame's fit 0.18 px off the rim moved
+        # 1.2 px off)
+        inward = fits[ib][3] < p["min_support"]
         for _ in range(GROW_ROUNDS):
             if fits[ib][3] >= decisive:
                 break
-            g = _grow(frame, dirs, fits[ib], p)
+            g = _grow(frame, dirs, fits[ib], p, inward)
             if g is fits[ib]:
                 break
             fits[ib] = g
@@ -966,7 +1020,7 @@ def _find_sphere_v2(frame, p, camera=None):
         rr = max(a[2], b[2])
         if (a[0] - b[0]) * (a[0] - b[0]) + (a[1] - b[1]) * (a[1] - b[1]) < rr * rr:
             continue  # a centre inside the other circle: the sphere's own texture or limb
-        if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]):
+        if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]) and not _flat(frame, dirs, a, b, p):
             raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
                            f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
     # the sphere's circle from its support's rays (the C++ keeps them from computing the support)

@@ -1582,17 +1582,20 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
 
 // A weakly supported fit tried again from larger circles (preprocess.py
 // _grow): from the same centre with the radius fine_window_px and 2
-// fine_window_px larger, fine_passes - 1 passes each; the best supported of
-// the fit and these (the fit on ties) is kept. True when one of these is.
-// bank[slot] holds the support rays of fit (the slot-th fit) and then of the
-// kept one, bank[spare] is free.
+// fine_window_px larger, and when inward (a fit that was no sphere) then as
+// much smaller too, fine_passes - 1 passes each; the best supported of the
+// fit and these (the first on ties, the fit before them) is kept. True when
+// one of these is. bank[slot] holds the support rays of fit (the slot-th
+// fit) and then of the kept one, bank[spare] is free.
 bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
-          std::vector<Rays> &bank, size_t slot, size_t spare)
+          std::vector<Rays> &bank, size_t slot, size_t spare, bool inward)
 {
     bool moved = false;
     thread_local RayEdges re;
     const Found start = *fit;
-    for (int k = 1; k <= 2; k++) {
+    static const int steps[4] = {1, 2, -1, -2};
+    for (int t = 0; t < (inward ? 4 : 2); t++) {
+        const int k = steps[t];
         double cx = start.cx, cy = start.cy, r = start.r + k * p->fine_window_px;
         bool ok = true;
         for (int ps = 0; ps < p->fine_passes - 1; ps++) {
@@ -1743,6 +1746,61 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
             w.push_back(std::sqrt(ex * ex + ey * ey) - nr);
         }
     *orad = nr + median_of(w.data(), w.size());
+}
+
+// How much brighter a circle's inside is than its edge (preprocess.py
+// _limb_shading): over the rays whose samples all lie in the frame, the
+// median of each ray's brightest sample (largest channel) from r/4 to 3r/4
+// (r/4 + i) over the median of its brightest from support_flank_px to 2
+// inlier_px inside the circle (r - i/2), the latter at least 1. False with
+// fewer than 8 such rays.
+bool limb_shading(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
+                  const pp_params *p, double *shade)
+{
+    const int K = (int)dirs.size() / 2;
+    const long ni = ifloor(r * 0.5) + 1;
+    const long e0 = (long)std::ceil(4.0 * p->inlier_px), e1 = ifloor(2.0 * p->support_flank_px);
+    if (e1 < e0) return false;
+    const size_t ns = (size_t)ni + (size_t)(e1 - e0 + 1);
+    std::vector<double> rho(ns), fx(ns), fy(ns), v(3 * ns), inner, edge;
+    std::vector<uint64_t> wa(ns), wb(ns);
+    for (long i = 0; i < ni; i++) rho[(size_t)i] = r * 0.25 + (double)i;
+    for (long i = e0; i <= e1; i++) rho[(size_t)(ni + i - e0)] = r - 0.5 * (double)i;
+    for (int k = 0; k < K; k++) {
+        const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+        bool in = true;
+        for (size_t j = 0; j < ns && in; j++) in = inside(f, cx + rho[j] * ux, cy + rho[j] * uy);
+        if (!in) continue;
+        ray_gather(f.p, (int64_t)f.stride, cx, cy, ux, uy, rho.data(), ns, fx.data(), fy.data(),
+                   wa.data(), wb.data());
+        bilinear3(wa.data(), wb.data(), fx.data(), fy.data(), ns, v.data());
+        double bi = 0.0, be = 0.0;
+        for (size_t j = 0; j < ns; j++) {
+            const double b = std::max(std::max(v[j], v[ns + j]), v[2 * ns + j]);
+            if (j < (size_t)ni)
+                bi = j == 0 ? b : std::max(bi, b);
+            else
+                be = j == (size_t)ni ? b : std::max(be, b);
+        }
+        inner.push_back(bi);
+        edge.push_back(be);
+    }
+    if (inner.size() < 8) return false;
+    *shade =
+        median_of(inner.data(), inner.size()) / std::max(1.0, median_of(edge.data(), edge.size()));
+    return true;
+}
+
+// Whether circle b's inside is flat where sphere a's darkens towards its rim
+// (preprocess.py _flat, LIMB_SHARE and LIMB_MIN: the same constants): then b
+// is no second sphere.
+bool flat(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
+          const pp_params *p)
+{
+    const double limb_share = 0.25, limb_min = 1.25;
+    double sa, sb;
+    if (!limb_shading(f, dirs, a.cx, a.cy, a.r, p, &sa) || !(sa >= limb_min)) return false;
+    return limb_shading(f, dirs, b.cx, b.cy, b.r, p, &sb) && sb - 1.0 < limb_share * (sa - 1.0);
 }
 
 double rim_outside(double cx, double cy, double r, int h, int w)
@@ -1898,11 +1956,13 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         size_t ib = 0;
         for (size_t i = 1; i < all.size(); i++)
             if (all[i].support > all[ib].support) ib = i;
+        // a fit below min_support (no sphere) is tried from smaller circles too, in every try
+        const bool inward = all[ib].support < p->min_support;
         // again from the circle it moved to, while that is better supported and still weak, at
         // most grow_rounds tries (training/preprocess.py GROW_ROUNDS: the same number)
         const int grow_rounds = 8;
         for (int k = 0; k < grow_rounds && all[ib].support < decisive &&
-                        grow(f, dirs, p, &all[ib], bank, ib, all.size());
+                        grow(f, dirs, p, &all[ib], bank, ib, all.size(), inward);
              k++) {
         }
     }
@@ -1929,13 +1989,15 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         return -1;
     }
     // another well supported circle of about its size, neither centre inside
-    // the other circle: a second sphere
+    // the other circle, its inside not flat where the sphere's is shaded: a
+    // second sphere
     for (size_t i = 0; i < fits.size(); i++) {
         const Found &b = all[fits[i]];
         if ((long)i == ia) continue;
         const double rr = std::max(a.r, b.r);
         if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) continue;
-        if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r)) {
+        if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r) &&
+            !flat(f, dirs, a, b, p)) {
             pi_seterrn(
                 err, errlen,
                 "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",

@@ -129,7 +129,7 @@ def test_weak_fit_retries_are_capped(monkeypatch):
     # (1 + min_support) / 2: the retries stop after GROW_ROUNDS tries (the frame is refused)
     tries = []
 
-    def grow(img, dirs, fit, p):
+    def grow(img, dirs, fit, p, inward=False):
         tries.append(fit)
         return (fit[0], fit[1], fit[2] + 1.0, fit[3] + 0.01)
 
