@@ -656,13 +656,15 @@ int pi_input_size(const pi_ctx *ctx)
 
 const char *pi_cpu_paths(void)
 {
-    static const char *const paths[2][3] = {
-        {"localisation portable, refinement x86-64 baseline",
-         "localisation portable, refinement AVX2", "localisation portable, refinement AVX-512"},
-        {"localisation AVX-512, refinement x86-64 baseline",
-         "localisation AVX-512, refinement AVX2", "localisation AVX-512, refinement AVX-512"}};
+    /* the refinement's versions and names: refine.h RF_VERSION_LIST */
+#define PI_LOC_PORTABLE(id, name) "localisation portable, refinement " name,
+#define PI_LOC_AVX512(id, name)   "localisation AVX-512, refinement " name,
+    static const char *const paths[2][RF_V_COUNT] = {{RF_VERSION_LIST(PI_LOC_PORTABLE)},
+                                                     {RF_VERSION_LIST(PI_LOC_AVX512)}};
+#undef PI_LOC_PORTABLE
+#undef PI_LOC_AVX512
     const int v = rf_version_in_use();
-    return paths[shim_crop2_avx512() != 0][v >= 0 && v <= 2 ? v : 0];
+    return paths[shim_crop2_avx512() != 0][v >= 0 && v < RF_V_COUNT ? v : 0];
 }
 
 const char *pi_metadata(const pi_ctx *ctx, const char *key)

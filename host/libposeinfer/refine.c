@@ -32,20 +32,24 @@
 #define M_PI 3.14159265358979323846
 #endif
 
-/* The per-pixel loops are compiled three ways and picked at run time
- * (rf_version). Every version does the same operations in the same order (no
- * sums reordered: the lanes are written out); the AVX-512 version fuses a
- * multiply and an add where the expression has one, the AVX2 and baseline
- * versions fuse none whatever the build's flags (-mfma, -march=native would
- * otherwise let the compiler fuse there too), so that those two give the same
- * bits and the AVX-512 version differs from them by rounding (docs/refine.md,
- * cost). A loop is written once, as NAME_body, and RF_VERSIONS makes NAME,
- * which calls the version rf_version picks. Where GCC's generic vectors
- * split into too many registers and spill (the lookups, the fit's and the
- * colour ratio's sums), a version has its own loop with the same operations
- * lane by lane: NAME_avx512, NAME_avx2, NAME_sse2 (the baseline); the
- * versions' test (test_refine_versions) holds the AVX2 and baseline ones to
- * the same bits. */
+/* The per-pixel loops come in versions (refine.h RF_VERSION_LIST) picked at
+ * run time (rf_version): on x86-64 with GCC, AVX-512, AVX2, the x86-64
+ * baseline and the portable one; elsewhere (and with clang) the portable one
+ * alone. Every version does the same operations in the same order (no sums
+ * reordered: the lanes are written out); the AVX-512 version fuses a
+ * multiply and an add where the expression has one, the others fuse none
+ * whatever the build's flags (-mfma, -march=native would otherwise let the
+ * compiler fuse there too), so that they give the same bits and the
+ * AVX-512 version differs from them by rounding (docs/refine.md, cost). A
+ * loop is written once, as NAME_body, and RF_VERSIONS makes NAME, which calls
+ * the version rf_version picks: NAME_v2 (AVX-512), NAME_v1 (AVX2), NAME_v0 (the
+ * baseline and the portable version: SSE2 is x86-64's own, so the generic
+ * loops compile the same for both). Where GCC's generic vectors split into
+ * too many registers and spill (the lookups, the fit's and the colour
+ * ratio's sums), an x86-64 version has its own loop with the same operations
+ * lane by lane: NAME_avx512, NAME_avx2, NAME_sse2 (the baseline), beside the
+ * portable loop; the versions' test (test_refine_versions) holds the AVX2,
+ * baseline and portable ones to the same bits. */
 #define RF_BODY static inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define RF_X86_GCC 1
@@ -65,7 +69,9 @@
     static ret name params                                                                       \
     {                                                                                            \
         int v_ = rf_version();                                                                   \
-        return v_ == 2 ? name##_v2 args : v_ == 1 ? name##_v1 args : name##_v0 args;             \
+        return v_ == RF_V_AVX512 ? name##_v2 args                                                \
+               : v_ == RF_V_AVX2 ? name##_v1 args                                                \
+                                 : name##_v0 args;                                               \
     }
 #else
 #define RF_VERSIONS(ret, name, params, args) \
@@ -75,17 +81,24 @@
     }
 #endif
 
+#ifdef RF_X86_GCC
+#define RF_NOFUSE __attribute__((optimize("fp-contract=off")))
+#else
+#define RF_NOFUSE
+#endif
+
 static int rf_forced = -1; /* rf_set_version */
 
-/* 2: AVX-512 (F and BW: the hand-written lookups need both), 1: AVX2, 0: the baseline */
+/* The best version the processor has (AVX-512: F and BW, which the
+ * hand-written lookups need), or the one rf_set_version chose */
 static int rf_version(void)
 {
 #ifdef RF_X86_GCC
     if (rf_forced >= 0) return rf_forced;
-    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw")) return 2;
-    return __builtin_cpu_supports("avx2") ? 1 : 0;
+    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw")) return RF_V_AVX512;
+    return __builtin_cpu_supports("avx2") ? RF_V_AVX2 : RF_V_BASELINE;
 #else
-    return 0;
+    return RF_V_PORTABLE;
 #endif
 }
 
@@ -946,12 +959,11 @@ gather_pass_avx2(rf_work *w, long n, long np, const void *restrict tex, int pair
  * paper's textures: bars of one colour) its derivatives are exactly 0 in
  * every channel, and so is all it adds to J^T J, J^T A and J^T e: the
  * Jacobian pass skips it. tr: texels a row of tiles; pairs: the level as
- * pairs (tr: entries a band), else NULL. On x86-64 each version has its
- * own, which does the same lane by lane: gather_pass_avx512,
- * gather_pass_avx2, gather_pass_sse2 (the baseline). */
-#ifndef RF_X86_GCC
-static long gather_pass(rf_work *w, long n, long np, const uint16_t *restrict tex,
-                        const uint64_t *restrict pairs, int tr, float scale)
+ * pairs (tr: entries a band), else NULL. This is the portable version's;
+ * each x86-64 version has its own, which does the same lane by lane:
+ * gather_pass_avx512, gather_pass_avx2, gather_pass_sse2 (the baseline). */
+RF_NOFUSE static long gather_pass(rf_work *w, long n, long np, const uint16_t *restrict tex,
+                                  const uint64_t *restrict pairs, int tr, float scale)
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
@@ -1009,7 +1021,7 @@ static long gather_pass(rf_work *w, long n, long np, const uint16_t *restrict te
     }
     return m;
 }
-#else
+#ifdef RF_X86_GCC
 /* gather_pass_avx2 for the baseline (SSE2), 4 samples at a time: no gathers,
  * each texel entry loaded on its own; the lanes of the Jacobian's samples
  * copied one by one. */
@@ -1423,7 +1435,7 @@ static void solve_spd_n3(int k, const double A[3][6][6], int m, const double *co
                          double *const x[3], int xs)
 {
 #ifdef RF_X86_GCC
-    if (rf_version() >= 1) {
+    if (rf_version() >= RF_V_AVX2) {
         solve_spd_n3_v1(k, A, m, b, bs, x, xs);
         return;
     }
@@ -1558,17 +1570,17 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     w->gp[GEO_KH] = (float)(th / M_PI);
     geometry_pass(w, npad, Rf, w->gp, tw, th, tr, pairs != NULL);
 #ifdef RF_X86_GCC
-    if (rf_version() == 2)
+    if (rf_version() == RF_V_AVX512)
         w->nact = gather_pass_avx512(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
                                      tr, t->scale[lev]);
-    else if (rf_version() == 1)
+    else if (rf_version() == RF_V_AVX2)
         w->nact = gather_pass_avx2(w, npad, np, pairs ? (const void *)pairs : tex, pairs != NULL,
                                    tr, t->scale[lev]);
-    else
+    else if (rf_version() == RF_V_BASELINE)
         w->nact = gather_pass_sse2(w, npad, np, tex, pairs, tr, t->scale[lev]);
-#else
-    w->nact = gather_pass(w, npad, np, tex, pairs, tr, t->scale[lev]);
+    else
 #endif
+        w->nact = gather_pass(w, npad, np, tex, pairs, tr, t->scale[lev]);
     if (w->gray) {
         luma_pass(w->a, A_V0, npad); /* the fit's values */
         /* the Jacobian's samples, which the lookups chose (a derivative of
@@ -1580,9 +1592,9 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
         for (long k = np; k < npad; k++) w->a[m][k] = 0;
     double q[3][20], oo[3];
 #if defined(RF_X86_GCC) && RF_VL == 16
-    if (rf_version() == 1)
+    if (rf_version() == RF_V_AVX2)
         fit_sums_avx2(w, npad, w->gray ? 1 : 3, q);
-    else if (rf_version() == 0)
+    else if (rf_version() == RF_V_BASELINE)
         fit_sums_sse2(w, npad, w->gray ? 1 : 3, q);
     else
 #endif
@@ -1821,9 +1833,9 @@ static long jac_samples(rf_work *w)
         const float *src = w->a[a];
         float *dst = w->ja[a];
 #ifdef RF_X86_GCC
-        if (rf_version() == 2)
+        if (rf_version() == RF_V_AVX512)
             pick_avx512(dst, src, idx, mp);
-        else if (rf_version() == 1)
+        else if (rf_version() == RF_V_AVX2)
             pick_avx2(dst, src, idx, mp);
         else
 #endif
@@ -2140,7 +2152,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
     if (!w->gray) {
         if (!at_final) evaluate(t, 0, w, R, cx, cy, r, focal_px, &fit0);
 #if defined(RF_X86_GCC) && RF_VL == 16
-        if (rf_version() == 1)
+        if (rf_version() == RF_V_AVX2)
             out->colour = colour_ratio_avx2(w, &fit0);
         else
 #endif

@@ -100,8 +100,19 @@ void rf_matrix_to_euler(const double R[3][3], double euler_deg[3]);
 /* Base64 (RFC 4648, no line breaks) to bytes: *out malloc'ed. -1 on bad text. */
 int rf_base64_decode(const char *text, unsigned char **out, size_t *len);
 
-/* Which version of the per-pixel loops runs (refine.c): 2 AVX-512, 1 AVX2,
- * 0 the x86-64 baseline (other machines: 0). v < 0: the best the processor
+/* The versions of the per-pixel loops (refine.c), lowest first: each one's
+ * number and name (pi_cpu_paths reports the name). The portable version is
+ * the plain C loops: the only one on other processors (aarch64) and in a
+ * clang build; on x86-64 (GCC) tests and benches can pick it with
+ * rf_set_version. All versions but AVX-512 give the same bits. */
+// clang-format off
+#define RF_VERSION_LIST(X) X(RF_V_PORTABLE, "portable") X(RF_V_BASELINE, "x86-64 baseline") \
+                           X(RF_V_AVX2, "AVX2") X(RF_V_AVX512, "AVX-512")
+// clang-format on
+#define RF_VERSION_ENUM_(id, name) id,
+enum { RF_VERSION_LIST(RF_VERSION_ENUM_) RF_V_COUNT };
+
+/* Which version of the per-pixel loops runs: v < 0, the best the processor
  * has (the default); else v, or the best there is when that is lower.
  * Returns the version now in effect. For tests: not thread-safe. */
 int rf_set_version(int v);
