@@ -39,17 +39,18 @@
  * reordered: the lanes are written out); the AVX-512 version fuses a
  * multiply and an add where the expression has one, the others fuse none
  * whatever the build's flags (-mfma, -march=native would otherwise let the
- * compiler fuse there too), so that they give the same bits and the
- * AVX-512 version differs from them by rounding (docs/refine.md, cost). A
- * loop is written once, as NAME_body, and RF_VERSIONS makes NAME, which calls
- * the version rf_version picks: NAME_v2 (AVX-512), NAME_v1 (AVX2), NAME_v0 (the
- * baseline and the portable version: SSE2 is x86-64's own, so the generic
- * loops compile the same for both). Where GCC's generic vectors split into
- * too many registers and spill (the lookups, the fit's and the colour
- * ratio's sums), an x86-64 version has its own loop with the same operations
- * lane by lane: NAME_avx512, NAME_avx2, NAME_sse2 (the baseline), beside the
- * portable loop; the versions' test (test_refine_versions) holds the AVX2,
- * baseline and portable ones to the same bits. */
+ * compiler fuse there too; on aarch64 compilers fuse by default: below), so
+ * that they give the same bits and the AVX-512 version differs from them by
+ * rounding (docs/refine.md, cost). A loop is written once, as NAME_body, and
+ * RF_VERSIONS makes NAME, which calls the version rf_version picks: NAME_v2
+ * (AVX-512), NAME_v1 (AVX2), NAME_v0 (the baseline and the portable version:
+ * SSE2 is x86-64's own, so the generic loops compile the same for both).
+ * Where GCC's generic vectors split into too many registers and spill (the
+ * lookups, the fit's and the colour ratio's sums), an x86-64 version has its
+ * own loop with the same operations lane by lane: NAME_avx512, NAME_avx2,
+ * NAME_sse2 (the baseline), beside the portable loop; the versions' test
+ * (test_refine_versions) holds the AVX2, baseline and portable ones to the
+ * same bits. */
 #define RF_BODY static inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define RF_X86_GCC 1
@@ -81,6 +82,18 @@
     }
 #endif
 
+/* Where the portable version is the only one (other processors, clang), no
+ * multiply-add is fused anywhere in the file, whatever the flags: aarch64 has
+ * fused multiply-adds, which clang uses within an expression by default and
+ * GCC anywhere unless -std=c11, and the answers would then differ from the
+ * x86-64 versions' (docs/refine.md). On x86-64 with GCC the versions'
+ * attributes say it. */
+#if defined(__GNUC__) && !defined(__clang__) && !defined(__x86_64__)
+#pragma GCC optimize("fp-contract=off")
+#endif
+#ifdef __clang__
+#pragma clang fp contract(off)
+#endif
 #ifdef RF_X86_GCC
 #define RF_NOFUSE __attribute__((optimize("fp-contract=off")))
 #else
