@@ -900,21 +900,38 @@ def _rim(rays, peaks, dirs, fit, new, p):
     return nx, ny, nr + _median(off)
 
 
+def _row_medians(a):
+    """The median of each row of a (the mean of its two middle values)."""
+    a = np.sort(a, axis=1)
+    n = a.shape[1]
+    return (a[:, (n - 1) // 2] + a[:, n // 2]) / 2.0
+
+
 def _support(img, dirs, cx, cy, r, p):
     """Fraction of all rays from (cx, cy) whose colour step has a local maximum within inlier_px
     of radius r of at least support_edge_min and support_ratio times the ray's median step from
     2 inlier_px to support_flank_px off r: noise and texture make steps all along a ray, a rim
-    one at the circle. Rays leaving the frame count as without: a circle mostly outside the
-    frame is not the sphere."""
+    one at the circle. Or, inside and outside judged apart (the flank's two sides: from 2
+    inlier_px to support_flank_px inside r and outside it), at least support_ratio times the
+    median step of the quieter side and at least every step of the busier one (the side of the
+    higher median; outside on ties): a busy backdrop (fine stripes, a checkerboard) makes steps
+    as large as the rim's all along the outer side, so that the whole flank's median hides a
+    rim that stands out of the sphere's side and is the largest step of the backdrop's; a noise
+    or clutter step next to a rim within support_flank_px is not the largest there. Rays leaving
+    the frame count as without: a circle mostly outside the frame is not the sphere."""
     rho, score, bad = _ray_scores(img, dirs, cx, cy, r, p["support_flank_px"])
     peak, pos = _peaks(rho, score, p["support_edge_min"])
-    flank = np.abs(rho[1:-1] - r) >= 2.0 * p["inlier_px"]
-    fl = np.sort(score[:, flank], axis=1)
-    nf = fl.shape[1]
-    if nf == 0:
+    d = rho[1:-1] - r
+    flank = np.abs(d) >= 2.0 * p["inlier_px"]
+    inner, outer = flank & (d < 0.0), flank & (d > 0.0)
+    if not inner.any() or not outer.any():
         return 0.0
-    med = (fl[:, (nf - 1) // 2] + fl[:, nf // 2]) / 2.0
-    ok = peak & (np.abs(pos - r) <= p["inlier_px"]) & (score[:, 1:-1] >= p["support_ratio"] * med[:, None])
+    med, med_in, med_out = (_row_medians(score[:, m]) for m in (flank, inner, outer))
+    busy = np.where(med_in <= med_out, score[:, outer].max(axis=1), score[:, inner].max(axis=1))
+    ratio, step = p["support_ratio"], score[:, 1:-1]
+    clear = (step >= ratio * med[:, None]) | ((step >= ratio * np.minimum(med_in, med_out)[:, None]) &
+                                              (step >= busy[:, None]))
+    ok = peak & (np.abs(pos - r) <= p["inlier_px"]) & clear
     return int((ok.any(axis=1) & ~bad).sum()) / len(dirs)
 
 

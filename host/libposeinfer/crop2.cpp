@@ -1473,11 +1473,34 @@ bool outer_half_max(const double *sc, const double *rho, long n, long i, double 
     return true;
 }
 
+// The support's sides judged apart (preprocess.py _support): whether peak
+// step c is at least ratio times the median of the quieter side's scores
+// and at least every score of the busier one (the side of the higher
+// median, outside on ties); sc the ray's scores, idx the flank's places,
+// the ni inside r first, then the no outside it.
+static bool sides_clear(const double *sc, const long *idx, size_t ni, size_t no, double ratio,
+                        double c, std::vector<double> &tmp)
+{
+    tmp.resize(ni + no);
+    for (size_t j = 0; j < ni + no; j++) tmp[j] = sc[(size_t)idx[j]];
+    double in_max = tmp[0], out_max = tmp[ni];
+    for (size_t j = 0; j < ni; j++) in_max = std::max(in_max, tmp[j]);
+    for (size_t j = ni; j < ni + no; j++) out_max = std::max(out_max, tmp[j]);
+    const double med_in = median_of(tmp.data(), ni), med_out = median_of(tmp.data() + ni, no);
+    const double busy = med_in <= med_out ? out_max : in_max;
+    return c >= ratio * std::min(med_in, med_out) && c >= busy;
+}
+
 // Support of a circle (preprocess.py _support): the fraction of all rays
 // with a step peak within inlier_px of r of at least support_edge_min and
 // support_ratio times the ray's median step 2 inlier_px to support_flank_px
-// off r. Each ray's peaks of at least ray_edge_min (sub-pixel place and outer
-// half-maximum) go to *keep, for the sphere's last step.
+// off r, or, inside and outside judged apart, at least support_ratio times
+// the median of the quieter side (2 inlier_px to support_flank_px inside r,
+// or outside it) and at least every step of the busier one (the side of the
+// higher median, outside on ties): a busy backdrop's steps along the outer
+// side hide in the whole flank's median a rim that stands out of the
+// sphere's side. Each ray's peaks of at least ray_edge_min (sub-pixel place
+// and outer half-maximum) go to *keep, for the sphere's last step.
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
                const pp_params *p, Rays *keep)
 {
@@ -1485,6 +1508,7 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     thread_local RayScores rs;
     thread_local std::vector<double> fl;
     thread_local std::vector<long> fi;
+    thread_local std::vector<double> side;
     thread_local std::vector<double> near;
     const double ratio = p->support_ratio;
     rs.setup(r, p->support_flank_px);
@@ -1496,12 +1520,15 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     // the peaks of at least either threshold: those of the higher one are
     // among them (a peak is at least its threshold and its neighbours)
     const double thr = std::min(p->support_edge_min, p->ray_edge_min);
-    // the flank's scores (the same places on every ray); none: no ray has
-    // support, whichever stay inside the frame
+    // the flank's scores (the same places on every ray; the first ni of them
+    // inside r, the others outside); none on a side: no ray has support,
+    // whichever stay inside the frame
     fi.clear();
     for (long i = 0; i < n; i++)
         if (std::fabs(rs.rho[(size_t)i + 1] - r) >= 2.0 * p->inlier_px) fi.push_back(i);
-    const bool flank = !fi.empty();
+    size_t ni = 0;
+    while (ni < fi.size() && rs.rho[(size_t)fi[ni] + 1] - r < 0.0) ni++;
+    const bool flank = ni > 0 && ni < fi.size();
     int cnt = 0;
     for (int k = 0; k < K; k++) {
         keep->off[(size_t)k] = (int32_t)keep->pos.size();
@@ -1538,10 +1565,17 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
                 cnt++;
                 continue;
             }
-            if (m < (nf - 1) / 2 + 1) continue;
+            if (m < (nf - 1) / 2 + 1) {
+                if (sides_clear(rs.score.data(), fi.data(), ni, nf - ni, ratio, cmax, side)) cnt++;
+                continue;
+            }
         }
         const double t = ratio * median_of(fl.data(), fl.size());
-        if (cmax >= t) cnt++;
+        if (cmax >= t) {
+            cnt++;
+            continue;
+        }
+        if (sides_clear(rs.score.data(), fi.data(), ni, fi.size() - ni, ratio, cmax, side)) cnt++;
     }
     keep->off[(size_t)K] = (int32_t)keep->pos.size();
     return (double)cnt / K;
