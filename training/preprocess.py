@@ -907,6 +907,25 @@ def _row_medians(a):
     return (a[:, (n - 1) // 2] + a[:, n // 2]) / 2.0
 
 
+def _support_rays(img, dirs, cx, cy, r, p):
+    """Which of the rays from (cx, cy) support the circle of radius r (see _support): a bool per
+    ray."""
+    rho, score, bad = _ray_scores(img, dirs, cx, cy, r, p["support_flank_px"])
+    peak, pos = _peaks(rho, score, p["support_edge_min"])
+    d = rho[1:-1] - r
+    flank = np.abs(d) >= 2.0 * p["inlier_px"]
+    inner, outer = flank & (d < 0.0), flank & (d > 0.0)
+    if not inner.any() or not outer.any():
+        return np.zeros(len(dirs), bool)
+    med, med_in, med_out = (_row_medians(score[:, m]) for m in (flank, inner, outer))
+    busy = np.where(med_in <= med_out, score[:, outer].max(axis=1), score[:, inner].max(axis=1))
+    ratio, step = p["support_ratio"], score[:, 1:-1]
+    clear = (step >= ratio * med[:, None]) | ((step >= ratio * np.minimum(med_in, med_out)[:, None]) &
+                                              (step >= busy[:, None]))
+    ok = peak & (np.abs(pos - r) <= p["inlier_px"]) & clear
+    return ok.any(axis=1) & ~bad
+
+
 def _support(img, dirs, cx, cy, r, p):
     """Fraction of all rays from (cx, cy) whose colour step has a local maximum within inlier_px
     of radius r of at least support_edge_min and support_ratio times the ray's median step from
@@ -919,20 +938,60 @@ def _support(img, dirs, cx, cy, r, p):
     rim that stands out of the sphere's side and is the largest step of the backdrop's; a noise
     or clutter step next to a rim within support_flank_px is not the largest there. Rays leaving
     the frame count as without: a circle mostly outside the frame is not the sphere."""
-    rho, score, bad = _ray_scores(img, dirs, cx, cy, r, p["support_flank_px"])
-    peak, pos = _peaks(rho, score, p["support_edge_min"])
-    d = rho[1:-1] - r
-    flank = np.abs(d) >= 2.0 * p["inlier_px"]
-    inner, outer = flank & (d < 0.0), flank & (d > 0.0)
-    if not inner.any() or not outer.any():
-        return 0.0
-    med, med_in, med_out = (_row_medians(score[:, m]) for m in (flank, inner, outer))
-    busy = np.where(med_in <= med_out, score[:, outer].max(axis=1), score[:, inner].max(axis=1))
-    ratio, step = p["support_ratio"], score[:, 1:-1]
-    clear = (step >= ratio * med[:, None]) | ((step >= ratio * np.minimum(med_in, med_out)[:, None]) &
-                                              (step >= busy[:, None]))
-    ok = peak & (np.abs(pos - r) <= p["inlier_px"]) & clear
-    return int((ok.any(axis=1) & ~bad).sum()) / len(dirs)
+    return int(_support_rays(img, dirs, cx, cy, r, p).sum()) / len(dirs)
+
+
+def _tangent(img, dirs, fit, p):
+    """The sphere's weakly supported fit tried again from larger circles internally tangent to it
+    where its support lies: where the limb darkens to the backdrop's level on one side, the fine
+    passes can settle on a circle through that arc's inner steps (the limb's shading or a texture
+    band 1-4 px inside the rim) and through the rim on the lit side, a circle 1-4 px off
+    towards the lit side (support 0.45-0.62) that _grow's larger circles from the same centre do
+    not leave. Here the supported rays' directions, summed in ray order, point to the lit arc;
+    from the circle with the radius fine_window_px and 2 fine_window_px larger and the centre as
+    far the other way (tangent to the fit there), fine_passes - 1 passes each (as _grow's), then
+    its support; the best supported of the fit and these two (the fit on ties) replaces it;
+    again from the new circle while one of the two replaced it and its support is below
+    (1 + min_support) / 2, at most GROW_ROUNDS tries. Only for the sphere, after every decision
+    (which circle is the sphere, cut, two spheres): it moves the sphere's circle, never whether
+    the frame is answered. Returns (cx, cy, r, support)."""
+    decisive = (1.0 + p["min_support"]) / 2.0
+    best = fit
+    if not best[3] < decisive:
+        return best
+    # the supported rays: of the fit (its support again, the same value), then of the circle
+    # that replaced it
+    sup = _support_rays(img, dirs, best[0], best[1], best[2], p)
+    for _ in range(GROW_ROUNDS):
+        if best[3] >= decisive:
+            break
+        mx, my = _seqsum(dirs[sup, 0].tolist()), _seqsum(dirs[sup, 1].tolist())
+        nm = math.sqrt(mx * mx + my * my)
+        if not nm > 0.0:
+            break
+        ux, uy = mx / nm, my / nm
+        cur, cur_sup = best, sup
+        for k in (1, 2):
+            d = k * p["fine_window_px"]
+            cx, cy, r = best[0] - d * ux, best[1] - d * uy, best[2] + d
+            ok = True
+            for _ in range(p["fine_passes"] - 1):
+                win = p["fine_window_px"] + p["fine_window_frac"] * r
+                f = _fit_rays(_ray_edges(img, dirs, cx, cy, r, win, p), dirs, cx, cy, cx, cy, r, p)
+                if f is None or not f[2] > 1.0:
+                    ok = False
+                    break
+                cx, cy, r, _ = f
+            if not ok:
+                continue
+            t = _support_rays(img, dirs, cx, cy, r, p)
+            s = int(t.sum()) / len(dirs)
+            if s > cur[3]:
+                cur, cur_sup = (cx, cy, r, s), t
+        if cur is best:
+            break
+        best, sup = cur, cur_sup
+    return best
 
 
 def _limb_shading(img, dirs, cx, cy, r, p):
@@ -1040,6 +1099,8 @@ def _find_sphere_v2(frame, p, camera=None):
         if max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2]) and not _flat(frame, dirs, a, b, p):
             raise NoSphere(f"two spheres in frame (circles at ({a[0] + 0.5:.1f}, {a[1] + 0.5:.1f}) r {a[2]:.1f} "
                            f"and ({b[0] + 0.5:.1f}, {b[1] + 0.5:.1f}) r {b[2]:.1f})")
+    # a weakly supported sphere tried from larger circles tangent to it on its supported arc
+    a = _tangent(frame, dirs, a, p)
     # the sphere's circle from its support's rays (the C++ keeps them from computing the support)
     rays = _ray_scores(frame, dirs, a[0], a[1], a[2], p["support_flank_px"])
     peaks = _peaks(rays[0], rays[1], p["ray_edge_min"])  # the edge candidates of both steps

@@ -1500,15 +1500,17 @@ static bool sides_clear(const double *sc, const long *idx, size_t ni, size_t no,
 // higher median, outside on ties): a busy backdrop's steps along the outer
 // side hide in the whole flank's median a rim that stands out of the
 // sphere's side. Each ray's peaks of at least ray_edge_min (sub-pixel place
-// and outer half-maximum) go to *keep, for the sphere's last step.
+// and outer half-maximum) go to *keep, for the sphere's last step. side
+// (when not null): the sum of the supported rays' directions, in ray order
+// (preprocess.py _tangent).
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
-               const pp_params *p, Rays *keep)
+               const pp_params *p, Rays *keep, double side[2] = nullptr)
 {
     const int K = (int)dirs.size() / 2;
     thread_local RayScores rs;
     thread_local std::vector<double> fl;
     thread_local std::vector<long> fi;
-    thread_local std::vector<double> side;
+    thread_local std::vector<double> sides_tmp;
     thread_local std::vector<double> near;
     const double ratio = p->support_ratio;
     rs.setup(r, p->support_flank_px);
@@ -1530,6 +1532,13 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     while (ni < fi.size() && rs.rho[(size_t)fi[ni] + 1] - r < 0.0) ni++;
     const bool flank = ni > 0 && ni < fi.size();
     int cnt = 0;
+    double sx = 0.0, sy = 0.0;
+    // a supported ray: counted, its direction added in ray order (side)
+    auto supported = [&](int k) {
+        cnt++;
+        sx += dirs[2 * (size_t)k];
+        sy += dirs[2 * (size_t)k + 1];
+    };
     for (int k = 0; k < K; k++) {
         keep->off[(size_t)k] = (int32_t)keep->pos.size();
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
@@ -1562,22 +1571,28 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
         if (ratio >= 0.0) {
             const size_t m = count_scaled_le(fl.data(), nf, ratio, cmax);
             if (m >= nf / 2 + 1) {
-                cnt++;
+                supported(k);
                 continue;
             }
             if (m < (nf - 1) / 2 + 1) {
-                if (sides_clear(rs.score.data(), fi.data(), ni, nf - ni, ratio, cmax, side)) cnt++;
+                if (sides_clear(rs.score.data(), fi.data(), ni, nf - ni, ratio, cmax, sides_tmp))
+                    supported(k);
                 continue;
             }
         }
         const double t = ratio * median_of(fl.data(), fl.size());
         if (cmax >= t) {
-            cnt++;
+            supported(k);
             continue;
         }
-        if (sides_clear(rs.score.data(), fi.data(), ni, fi.size() - ni, ratio, cmax, side)) cnt++;
+        if (sides_clear(rs.score.data(), fi.data(), ni, fi.size() - ni, ratio, cmax, sides_tmp))
+            supported(k);
     }
     keep->off[(size_t)K] = (int32_t)keep->pos.size();
+    if (side) {
+        side[0] = sx;
+        side[1] = sy;
+    }
     return (double)cnt / K;
 }
 
@@ -1653,6 +1668,69 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
         }
     }
     return moved;
+}
+
+// The sphere's weakly supported fit tried again from larger circles
+// internally tangent to it where its support lies (preprocess.py _tangent):
+// where the limb darkens to the backdrop's level on one side, the fine passes
+// can settle on a circle through that arc's inner steps and the rim on the lit
+// side, off towards the lit side. The supported rays' directions, summed in
+// ray order, point there; from the radius fine_window_px and 2
+// fine_window_px larger with the centre as far the other way, fine_passes -
+// 1 passes each, then the support; the best supported of the fit and these
+// (the fit on ties) replaces it; again from the new circle while one
+// replaced it and it is still below (1 + min_support) / 2, at most 8 tries
+// (preprocess.py GROW_ROUNDS). Only for the sphere, after every decision.
+// *rays holds the support rays of *fit, and of the kept circle after;
+// *spare is scratch.
+void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
+             Rays *rays, Rays *spare)
+{
+    const int rounds = 8;
+    const double decisive = (1.0 + p->min_support) / 2.0;
+    if (!(fit->support < decisive)) return;
+    thread_local RayEdges re;
+    // the supported rays' directions: of the fit (its support again, the same value), then
+    // of the circle that replaced it
+    double side[2], tside[2];
+    support(f, dirs, fit->cx, fit->cy, fit->r, p, spare, side);
+    for (int t = 0; t < rounds && fit->support < decisive; t++) {
+        const double nm = std::sqrt(side[0] * side[0] + side[1] * side[1]);
+        if (!(nm > 0.0)) break;
+        const double ux = side[0] / nm, uy = side[1] / nm;
+        const Found start = *fit;
+        double nside[2] = {side[0], side[1]};
+        bool moved = false;
+        for (int k = 1; k <= 2; k++) {
+            const double d = k * p->fine_window_px;
+            double cx = start.cx - d * ux, cy = start.cy - d * uy, r = start.r + d;
+            bool ok = true;
+            for (int ps = 0; ps < p->fine_passes - 1; ps++) {
+                const double win = p->fine_window_px + p->fine_window_frac * r;
+                ray_edges(f, dirs, cx, cy, r, win, p->ray_edge_min, 0.0, re);
+                double sx = cx, sy = cy, sr = r;
+                if (!fit_rays(re, dirs, cx, cy, &sx, &sy, &sr, p) || !(sr > 1.0)) {
+                    ok = false;
+                    break;
+                }
+                cx = sx;
+                cy = sy;
+                r = sr;
+            }
+            if (!ok) continue;
+            const double sup = support(f, dirs, cx, cy, r, p, spare, tside);
+            if (sup > fit->support) {
+                std::swap(*rays, *spare);
+                *fit = {cx, cy, r, sup};
+                nside[0] = tside[0];
+                nside[1] = tside[1];
+                moved = true;
+            }
+        }
+        if (!moved) break;
+        side[0] = nside[0];
+        side[1] = nside[1];
+    }
 }
 
 // The sphere's last step (preprocess.py _outermost, then _rim), from its
@@ -2039,8 +2117,11 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
             return -1;
         }
     }
+    // a weakly supported sphere tried from larger circles tangent to it on its supported arc
+    Found sp = a;
+    tangent(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
     // refitted through the outermost edges near it, its radius moved to the rim
-    final_circle(dirs, p, a, bank[fits[(size_t)ia]], ocx, ocy, orad);
+    final_circle(dirs, p, sp, bank[fits[(size_t)ia]], ocx, ocy, orad);
     return 0;
 }
 

@@ -29,6 +29,8 @@ def test_last_round_at_the_floor_scale(frames, monkeypatch):
     # the last round at the median-based scale, as every other round: both off centre (what
     # this guards)
     monkeypatch.setattr(pp, "_tukey_floor_weights", pp._tukey_weights)
+    # (and without the sphere's tangent tries, which move the weakly supported edge frame too)
+    monkeypatch.setattr(pp, "_tangent", lambda img, dirs, fit, p: fit)
     for img, (path, truth) in zip(imgs, frames):
         ec, _ = circle_error(pp.find_sphere(img, p, CAMERA), truth)
         assert ec > 0.5, (path.name, ec)

@@ -219,3 +219,43 @@ def test_refit_last_round_at_the_floor_scale(monkeypatch):
     last = re.search(r"if \(it == p->irls_iters - 1\) \{.*?tukey_weights\(res\.data\(\), res\.size\(\), "
                      r"p->tukey_c \* p->sigma_min_px, wts\.data\(\)\);.*?if \(kept < 8\) break;", src, re.S)
     assert last
+
+
+def test_tangent_tries_are_capped(monkeypatch):
+    # every tangent try moves the sphere's weak fit and raises its support, never to
+    # (1 + min_support) / 2: they stop after GROW_ROUNDS rounds, each from the circle before
+    # moved against its supported rays' direction and grown by fine_window_px and by 2
+    # fine_window_px (here the second try is the better supported and is kept)
+    p = pp.params()
+    K = p["rays"]
+    dirs = pp._ray_dirs(K)
+    calls = []
+
+    def support_rays(img, dirs, cx, cy, r, p):
+        calls.append((cx, cy, r))
+        sup = np.zeros(K, bool)
+        sup[:10 + len(calls)] = True  # a growing arc from the first ray on
+        return sup
+
+    monkeypatch.setattr(pp, "_support_rays", support_rays)
+    monkeypatch.setattr(pp, "_ray_edges", lambda img, dirs, cx, cy, r, win, p, ratio=0.0: None)
+    monkeypatch.setattr(pp, "_fit_rays", lambda cands, dirs, ox, oy, cx, cy, r, p: (cx, cy, r, []))
+    fit = (320.0, 256.0, 100.0, 11 / K)
+    out = pp._tangent(None, dirs, fit, p)
+    # per round: the fit's rays (the first call only), then the two tries'
+    assert len(calls) == 1 + 2 * pp.GROW_ROUNDS
+    assert out[3] == (10 + len(calls)) / K and out[2] == 100.0 + pp.GROW_ROUNDS * 2 * p["fine_window_px"]
+    # the first round's first try: tangent to the fit on its supported arc (rays 0 .. 10)
+    mx, my = pp._seqsum(dirs[:11, 0].tolist()), pp._seqsum(dirs[:11, 1].tolist())
+    nm = math.sqrt(mx * mx + my * my)
+    w = p["fine_window_px"]
+    assert calls[1] == (320.0 - w * mx / nm, 256.0 - w * my / nm, 100.0 + w)
+    # the C++ twin has the same cap and tries (host/libposeinfer/crop2.cpp tangent)
+    src = (Path(__file__).resolve().parents[2] / "host/libposeinfer/crop2.cpp").read_text()
+    body = src[src.index("void tangent("):]
+    body = body[:body.index("\n}\n")]
+    cap = re.search(r"const int rounds = (\d+);", body)
+    assert cap and int(cap.group(1)) == pp.GROW_ROUNDS
+    assert "for (int t = 0; t < rounds && fit->support < decisive; t++)" in body
+    assert "for (int k = 1; k <= 2; k++)" in body
+    assert "const double d = k * p->fine_window_px;" in body
