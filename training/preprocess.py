@@ -744,6 +744,18 @@ def _fine(img, dirs, cand, s, p):
     return cx, cy, r, _support(img, dirs, cx, cy, r, p)
 
 
+def _passes(img, dirs, cx, cy, r, p):
+    """fine_passes - 1 passes, as after the first, from the circle (cx, cy, r): the circle they
+    reach, or None when a fit fails (crop2.cpp passes_from)."""
+    for _ in range(p["fine_passes"] - 1):
+        win = p["fine_window_px"] + p["fine_window_frac"] * r
+        f = _fit_rays(_ray_edges(img, dirs, cx, cy, r, win, p), dirs, cx, cy, cx, cy, r, p)
+        if f is None or not f[2] > 1.0:
+            return None
+        cx, cy, r, _ = f
+    return cx, cy, r
+
+
 def _grow(img, dirs, fit, p, inward=False):
     """A weakly supported fit tried again from larger circles: where the limb is dark against a
     dark backdrop, the fit can settle on a black texture band just inside it (a circle 2-5 %
@@ -757,17 +769,10 @@ def _grow(img, dirs, fit, p, inward=False):
     passes' window reaches. Returns (cx, cy, r, support)."""
     best = fit
     for k in (1, 2, -1, -2) if inward else (1, 2):
-        cx, cy, r = fit[0], fit[1], fit[2] + k * p["fine_window_px"]
-        ok = True
-        for _ in range(p["fine_passes"] - 1):
-            win = p["fine_window_px"] + p["fine_window_frac"] * r
-            f = _fit_rays(_ray_edges(img, dirs, cx, cy, r, win, p), dirs, cx, cy, cx, cy, r, p)
-            if f is None or not f[2] > 1.0:
-                ok = False
-                break
-            cx, cy, r, _ = f
-        if not ok:
+        c = _passes(img, dirs, fit[0], fit[1], fit[2] + k * p["fine_window_px"], p)
+        if c is None:
             continue
+        cx, cy, r = c
         sup = _support(img, dirs, cx, cy, r, p)
         if sup > best[3]:
             best = (cx, cy, r, sup)
@@ -973,17 +978,10 @@ def _tangent(img, dirs, fit, p):
         cur, cur_sup = best, sup
         for k in (1, 2):
             d = k * p["fine_window_px"]
-            cx, cy, r = best[0] - d * ux, best[1] - d * uy, best[2] + d
-            ok = True
-            for _ in range(p["fine_passes"] - 1):
-                win = p["fine_window_px"] + p["fine_window_frac"] * r
-                f = _fit_rays(_ray_edges(img, dirs, cx, cy, r, win, p), dirs, cx, cy, cx, cy, r, p)
-                if f is None or not f[2] > 1.0:
-                    ok = False
-                    break
-                cx, cy, r, _ = f
-            if not ok:
+            c = _passes(img, dirs, best[0] - d * ux, best[1] - d * uy, best[2] + d, p)
+            if c is None:
                 continue
+            cx, cy, r = c
             t = _support_rays(img, dirs, cx, cy, r, p)
             s = int(t.sum()) / len(dirs)
             if s > cur[3]:

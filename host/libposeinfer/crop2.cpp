@@ -1629,6 +1629,31 @@ bool fine(const Frame &f, const std::vector<double> &dirs, const Cand &c, int s,
     return true;
 }
 
+// The weak fit's retries (grow, tangent) stop after this many rounds
+// (training/preprocess.py GROW_ROUNDS: the same number): each round that
+// moves raises the support, so they end anyway, but this bounds a frame's
+// time.
+constexpr int grow_rounds = 8;
+
+// fine_passes - 1 passes, as after the first, from the circle (*cx, *cy, *r),
+// which moves to the circle they reach (preprocess.py _passes). False: a fit
+// failed.
+bool passes_from(const Frame &f, const std::vector<double> &dirs, const pp_params *p, double *cx,
+                 double *cy, double *r)
+{
+    thread_local RayEdges re;
+    for (int ps = 0; ps < p->fine_passes - 1; ps++) {
+        const double win = p->fine_window_px + p->fine_window_frac * *r;
+        ray_edges(f, dirs, *cx, *cy, *r, win, p->ray_edge_min, 0.0, re);
+        double sx = *cx, sy = *cy, sr = *r;
+        if (!fit_rays(re, dirs, *cx, *cy, &sx, &sy, &sr, p) || !(sr > 1.0)) return false;
+        *cx = sx;
+        *cy = sy;
+        *r = sr;
+    }
+    return true;
+}
+
 // A weakly supported fit tried again from larger circles (preprocess.py
 // _grow): from the same centre with the radius fine_window_px and 2
 // fine_window_px larger, and when inward (a fit that was no sphere) then as
@@ -1640,26 +1665,12 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
           std::vector<Rays> &bank, size_t slot, size_t spare, bool inward)
 {
     bool moved = false;
-    thread_local RayEdges re;
     const Found start = *fit;
     static const int steps[4] = {1, 2, -1, -2};
     for (int t = 0; t < (inward ? 4 : 2); t++) {
         const int k = steps[t];
         double cx = start.cx, cy = start.cy, r = start.r + k * p->fine_window_px;
-        bool ok = true;
-        for (int ps = 0; ps < p->fine_passes - 1; ps++) {
-            const double win = p->fine_window_px + p->fine_window_frac * r;
-            ray_edges(f, dirs, cx, cy, r, win, p->ray_edge_min, 0.0, re);
-            double sx = cx, sy = cy, sr = r;
-            if (!fit_rays(re, dirs, cx, cy, &sx, &sy, &sr, p) || !(sr > 1.0)) {
-                ok = false;
-                break;
-            }
-            cx = sx;
-            cy = sy;
-            r = sr;
-        }
-        if (!ok) continue;
+        if (!passes_from(f, dirs, p, &cx, &cy, &r)) continue;
         const double sup = support(f, dirs, cx, cy, r, p, &bank[spare]);
         if (sup > fit->support) {
             std::swap(bank[slot], bank[spare]);
@@ -1679,22 +1690,20 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
 // fine_window_px larger with the centre as far the other way, fine_passes -
 // 1 passes each, then the support; the best supported of the fit and these
 // (the fit on ties) replaces it; again from the new circle while one
-// replaced it and it is still below (1 + min_support) / 2, at most 8 tries
-// (preprocess.py GROW_ROUNDS). Only for the sphere, after every decision.
+// replaced it and it is still below (1 + min_support) / 2, at most
+// grow_rounds tries. Only for the sphere, after every decision.
 // *rays holds the support rays of *fit, and of the kept circle after;
 // *spare is scratch.
 void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
              Rays *rays, Rays *spare)
 {
-    const int rounds = 8;
     const double decisive = (1.0 + p->min_support) / 2.0;
     if (!(fit->support < decisive)) return;
-    thread_local RayEdges re;
     // the supported rays' directions: of the fit (its support again, the same value), then
     // of the circle that replaced it
     double side[2], tside[2];
     support(f, dirs, fit->cx, fit->cy, fit->r, p, spare, side);
-    for (int t = 0; t < rounds && fit->support < decisive; t++) {
+    for (int t = 0; t < grow_rounds && fit->support < decisive; t++) {
         const double nm = std::sqrt(side[0] * side[0] + side[1] * side[1]);
         if (!(nm > 0.0)) break;
         const double ux = side[0] / nm, uy = side[1] / nm;
@@ -1704,20 +1713,7 @@ void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p
         for (int k = 1; k <= 2; k++) {
             const double d = k * p->fine_window_px;
             double cx = start.cx - d * ux, cy = start.cy - d * uy, r = start.r + d;
-            bool ok = true;
-            for (int ps = 0; ps < p->fine_passes - 1; ps++) {
-                const double win = p->fine_window_px + p->fine_window_frac * r;
-                ray_edges(f, dirs, cx, cy, r, win, p->ray_edge_min, 0.0, re);
-                double sx = cx, sy = cy, sr = r;
-                if (!fit_rays(re, dirs, cx, cy, &sx, &sy, &sr, p) || !(sr > 1.0)) {
-                    ok = false;
-                    break;
-                }
-                cx = sx;
-                cy = sy;
-                r = sr;
-            }
-            if (!ok) continue;
+            if (!passes_from(f, dirs, p, &cx, &cy, &r)) continue;
             const double sup = support(f, dirs, cx, cy, r, p, spare, tside);
             if (sup > fit->support) {
                 std::swap(*rays, *spare);
@@ -2071,8 +2067,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         // a fit below min_support (no sphere) is tried from smaller circles too, in every try
         const bool inward = all[ib].support < p->min_support;
         // again from the circle it moved to, while that is better supported and still weak, at
-        // most grow_rounds tries (training/preprocess.py GROW_ROUNDS: the same number)
-        const int grow_rounds = 8;
+        // most grow_rounds tries
         for (int k = 0; k < grow_rounds && all[ib].support < decisive &&
                         grow(f, dirs, p, &all[ib], bank, ib, all.size(), inward);
              k++) {

@@ -142,8 +142,9 @@ def test_weak_fit_retries_are_capped(monkeypatch):
     # the C++ twin stops after as many (host/libposeinfer/crop2.cpp)
     src = (Path(__file__).resolve().parents[2] / "host/libposeinfer/crop2.cpp").read_text()
     # the cap and the loop's condition (a changed count, `<=` or a start other than 0 fails)
-    loop = re.search(r"const int grow_rounds = (\d+);\s*for \(int k = 0; k < grow_rounds && ", src)
-    assert loop and int(loop.group(1)) == pp.GROW_ROUNDS
+    cap = re.search(r"constexpr int grow_rounds = (\d+);", src)
+    assert cap and int(cap.group(1)) == pp.GROW_ROUNDS
+    assert "for (int k = 0; k < grow_rounds && " in src
 
 
 def test_v1_still_works():
@@ -254,8 +255,8 @@ def test_tangent_tries_are_capped(monkeypatch):
     src = (Path(__file__).resolve().parents[2] / "host/libposeinfer/crop2.cpp").read_text()
     body = src[src.index("void tangent("):]
     body = body[:body.index("\n}\n")]
-    cap = re.search(r"const int rounds = (\d+);", body)
+    cap = re.search(r"constexpr int grow_rounds = (\d+);", src)
     assert cap and int(cap.group(1)) == pp.GROW_ROUNDS
-    assert "for (int t = 0; t < rounds && fit->support < decisive; t++)" in body
+    assert "for (int t = 0; t < grow_rounds && fit->support < decisive; t++)" in body
     assert "for (int k = 1; k <= 2; k++)" in body
     assert "const double d = k * p->fine_window_px;" in body
