@@ -110,9 +110,10 @@ DEFAULTS_V2 = {
 
 DEFAULTS = DEFAULTS_V2
 
-# The weak fit's retries from larger circles (_grow, step 5 of docs/interfaces.md) stop after
-# this many tries: each try that moves raises the support, so the retries end anyway, but this
-# bounds a frame's time. The 612 measurement frames take at most 4 tries (3 that move). A constant of the algorithm, not a model parameter (a model's metadata holds every
+# The weak fit's retries (_grow, and the sphere's _tangent; step 5 of docs/interfaces.md) stop
+# after this many rounds: each round that moves raises the support, so the retries end anyway,
+# but this bounds a frame's time. The 612 measurement frames took at most 4 _grow tries (3 that
+# move). A constant of the algorithm, not a model parameter (a model's metadata holds every
 # parameter, with no default); host/libposeinfer/crop2.cpp has the same (grow_rounds).
 GROW_ROUNDS = 8
 
@@ -919,7 +920,8 @@ def _support_rays(img, dirs, cx, cy, r, p):
     peak, pos = _peaks(rho, score, p["support_edge_min"])
     d = rho[1:-1] - r
     flank = np.abs(d) >= 2.0 * p["inlier_px"]
-    inner, outer = flank & (d < 0.0), flank & (d > 0.0)
+    inner = flank & (d < 0.0)
+    outer = flank & ~inner  # a sample at r itself (inlier_px 0) outside, as crop2.cpp counts it
     if not inner.any() or not outer.any():
         return np.zeros(len(dirs), bool)
     med, med_in, med_out = (_row_medians(score[:, m]) for m in (flank, inner, outer))
@@ -1061,6 +1063,7 @@ def _find_sphere_v2(frame, p, camera=None):
             fits.append(f)
     if fits:
         # the best supported fit (first on ties), when weakly supported, tried from larger circles
+        # (and from smaller ones too when below min_support)
         ib = min(range(len(fits)), key=lambda i: (-fits[i][3], i))
         # again from the circle it moved to, while that is better supported and still weak, at
         # most GROW_ROUNDS tries. A fit below min_support (no sphere: the frame would be

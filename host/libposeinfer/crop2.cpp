@@ -2060,6 +2060,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         if (fine(f, dirs, c, s, p, &fo, &bank[all.size()])) all.push_back(fo);
     }
     // the best supported fit (first on ties), when weakly supported, tried from larger circles
+    // (and from smaller ones too when below min_support)
     if (!all.empty()) {
         size_t ib = 0;
         for (size_t i = 1; i < all.size(); i++)
