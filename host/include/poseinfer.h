@@ -116,7 +116,8 @@ int pi_input_size(const pi_ctx *ctx);
 
 /* Which versions of the runtime's own per-pixel loops run on this processor,
  * e.g. "localisation AVX-512, refinement AVX-512": the same answers on every
- * processor, not the same time (docs/bench/host.md). A static string. */
+ * processor (the AVX-512 refinement's within rounding: docs/refine.md), not
+ * the same time (docs/bench/host.md). A static string. */
 const char *pi_cpu_paths(void);
 
 /* A metadata value of the loaded model (e.g. "spherepose.texture"), or NULL. */

@@ -37,18 +37,21 @@
  * baseline and the portable one; elsewhere (and with clang) the portable one
  * alone. Every version does the same operations in the same order (no sums
  * reordered: the lanes are written out); the AVX-512 version fuses a
- * multiply and an add where the expression has one, the others fuse none
- * whatever the build's flags (-mfma, -march=native would otherwise let the
- * compiler fuse there too; on aarch64 compilers fuse by default: below), so
- * that they give the same bits and the AVX-512 version differs from them by
- * rounding (docs/refine.md, cost). A loop is written once, as NAME_body, and
+ * multiply and an add where the expression has one, the others fuse none:
+ * their loops say so whatever the flags (-mfma, -march=native would otherwise
+ * let the compiler fuse there too; on aarch64 compilers fuse by default:
+ * below), and the code they share relies on ISO C mode (-std=c11, in which
+ * GCC fuses nothing unless told to; checked below), so that they give the
+ * same bits and the AVX-512 version differs
+ * from them by rounding (docs/refine.md, cost). A loop is written once, as NAME_body, and
  * RF_VERSIONS makes NAME, which calls the version rf_version picks: NAME_v2
  * (AVX-512), NAME_v1 (AVX2), NAME_v0 (the baseline and the portable version:
  * SSE2 is x86-64's own, so the generic loops compile the same for both).
  * Where GCC's generic vectors split into too many registers and spill (the
  * lookups, the fit's and the colour ratio's sums), an x86-64 version has its
- * own loop with the same operations lane by lane: NAME_avx512, NAME_avx2,
- * NAME_sse2 (the baseline), beside the portable loop; the versions' test
+ * own loop with the same operations lane by lane (the lookups: NAME_avx512,
+ * NAME_avx2, NAME_sse2; the fit's sums: NAME_avx2, NAME_sse2; the colour
+ * ratio: NAME_avx2), beside the portable loop; the versions' test
  * (test_refine_versions) holds the AVX2, baseline and portable ones to the
  * same bits. */
 #define RF_BODY static inline __attribute__((always_inline))
@@ -88,6 +91,13 @@
  * GCC anywhere unless -std=c11, and the answers would then differ from the
  * x86-64 versions' (docs/refine.md). On x86-64 with GCC the versions'
  * attributes say it. */
+#if defined(RF_X86_GCC) && defined(__FMA__) && !defined(__STRICT_ANSI__)
+/* GNU C mode lets GCC fuse across statements in the code the versions
+ * share, and the x86-64 versions' bits would then differ from other
+ * processors' */
+#error \
+    "refine.c: build with -std=c11 (host/Makefile): GNU C mode with FMA changes the answers' bits"
+#endif
 #if defined(__GNUC__) && !defined(__clang__) && !defined(__x86_64__)
 #pragma GCC optimize("fp-contract=off")
 #endif
@@ -498,7 +508,7 @@ void rf_work_free(rf_work *w)
 
 /* Room for n samples (rounded up to RF_LANES) in the sample arrays; the
  * Jacobian's arrays and idx one vector longer (whole vectors are stored
- * past their last sample: gather_pass_avx512). */
+ * past their last sample: gather_pass_avx512, gather_pass_avx2). */
 static int reserve(rf_work *w, size_t n)
 {
     n = (n + RF_LANES - 1) / RF_LANES * RF_LANES;
