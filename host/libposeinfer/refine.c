@@ -1054,7 +1054,10 @@ gather_pass_sse2(rf_work *w, long n, long np, const uint16_t *restrict tex,
 {
     const int32_t *restrict off = w->off;
     const float *restrict fx = w->a[A_FX], *restrict fy = w->a[A_FY];
-    const long long *base = pairs ? (const long long *)pairs : (const long long *)tex;
+    /* read as 64-bit entries what was written as uint16_t tiles or uint64_t
+     * pairs: may_alias keeps that defined under strict aliasing */
+    typedef long long __attribute__((may_alias)) entry64;
+    const entry64 *base = pairs ? (const entry64 *)pairs : (const entry64 *)tex;
     const __m128 sc = _mm_set1_ps(scale);
     const __m128i ten = _mm_set1_epi32(0x3ff), word = _mm_set1_epi32(0xffff),
                   nosign = _mm_set1_epi32(0x7fffffff);
@@ -1063,7 +1066,7 @@ gather_pass_sse2(rf_work *w, long n, long np, const uint16_t *restrict tex,
         if (k + 32 < n)
             for (int l = 0; l < 4; l++) {
                 int32_t o = off[k + 32 + l];
-                const long long *p = base + o;
+                const entry64 *p = base + o;
                 __builtin_prefetch(p);
                 __builtin_prefetch(p + (pairs ? RF_PAIR_DY(o, tr) : RF_TILE_DY(o, tr)));
             }
