@@ -621,19 +621,23 @@ def _kasa(x, y, wts):
     return cx, cy, math.sqrt(rr)
 
 
+def _biweight(res, cut):
+    """Tukey's biweight of the residuals res, zero from |residual| = cut on."""
+    u = np.asarray(res, dtype=np.float64) / cut
+    return np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
+
+
 def _tukey_weights(res, p):
     """The robust fit's weights of its residuals: Tukey's biweight at tukey_c times the scale
     (1.4826 times the median |residual|, at least sigma_min_px)."""
     sigma = max(p["sigma_min_px"], 1.4826 * _median([abs(v) for v in res]))
-    u = np.asarray(res, dtype=np.float64) / (p["tukey_c"] * sigma)
-    return np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
+    return _biweight(res, p["tukey_c"] * sigma)
 
 
 def _tukey_floor_weights(res, p):
     """Tukey's biweight at tukey_c times the floor of the robust scale (sigma_min_px), for the
     refit's last round (_outermost)."""
-    u = np.asarray(res, dtype=np.float64) / (p["tukey_c"] * p["sigma_min_px"])
-    return np.where((-1.0 < u) & (u < 1.0), (1.0 - u * u) * (1.0 - u * u), 0.0).tolist()
+    return _biweight(res, p["tukey_c"] * p["sigma_min_px"])
 
 
 def _fit_rays(cands, dirs, ox, oy, cx, cy, r, p):
