@@ -51,9 +51,14 @@
  * lookups, the fit's and the colour ratio's sums), an x86-64 version has its
  * own loop with the same operations lane by lane (the lookups: NAME_avx512,
  * NAME_avx2, NAME_sse2; the fit's sums: NAME_avx2, NAME_sse2; the colour
- * ratio: NAME_avx2), beside the portable loop; the versions' test
+ * ratio: NAME_avx2), beside the portable loop, and NAME calls it in place
+ * of NAME_v1 (RF_VERSIONS_HAND: the fit's sums and the colour ratio, whose
+ * NAME_v1 is not built; the lookups are picked in evaluate); the versions' test
  * (test_refine_versions) holds the AVX2, baseline and portable ones to the
  * same bits. */
+#ifndef RF_VL
+#define RF_VL 16 /* lanes of the vector operations (RF_LANES a multiple) */
+#endif
 #define RF_BODY static inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define RF_X86_GCC 1
@@ -77,12 +82,37 @@
                : v_ == RF_V_AVX2 ? name##_v1 args                                                \
                                  : name##_v0 args;                                               \
     }
+#if RF_VL == 16
+/* RF_VERSIONS for a loop whose AVX2 version (avx2) and baseline one (base,
+ * or NAME_v0 where the baseline has none of its own) are written by hand:
+ * NAME_v2 and NAME_v0 alone are built from the body */
+#define RF_VERSIONS_HAND(ret, name, params, args, avx2, base)                                    \
+    __attribute__((target("avx512f"), optimize("fp-contract=fast"))) static ret name##_v2 params \
+    {                                                                                            \
+        return name##_body args;                                                                 \
+    }                                                                                            \
+    __attribute__((optimize("fp-contract=off"))) static ret name##_v0 params                     \
+    {                                                                                            \
+        return name##_body args;                                                                 \
+    }                                                                                            \
+    static ret name params                                                                       \
+    {                                                                                            \
+        int v_ = rf_version();                                                                   \
+        return v_ == RF_V_AVX512     ? name##_v2 args                                            \
+               : v_ == RF_V_AVX2     ? avx2 args                                                 \
+               : v_ == RF_V_BASELINE ? base args                                                 \
+                                     : name##_v0 args;                                           \
+    }
+#endif
 #else
 #define RF_VERSIONS(ret, name, params, args) \
     static ret name params                   \
     {                                        \
         return name##_body args;             \
     }
+#endif
+#ifndef RF_VERSIONS_HAND /* no hand-written versions: other processors, clang, RF_VL not 16 */
+#define RF_VERSIONS_HAND(ret, name, params, args, avx2, base) RF_VERSIONS(ret, name, params, args)
 #endif
 
 /* Where the portable version is the only one (other processors, clang), no
@@ -140,9 +170,6 @@ int rf_set_version(int v)
 
 /* Lanes of the written-out sums; the sample arrays are padded to a multiple. */
 #define RF_LANES 16
-#ifndef RF_VL
-#define RF_VL 16 /* lanes of the vector operations (RF_LANES a multiple) */
-#endif
 
 /* Texels are stored in tiles of RF_TILE_W x RF_TILE_H, one 64-byte cache
  * line each (8 texels of 8 bytes), the tiles row by row: a bilinear lookup's
@@ -1335,8 +1362,8 @@ __attribute__((optimize("fp-contract=off"))) static void fit_sums_sse2(const rf_
     }
 }
 #endif
-RF_VERSIONS(void, fit_sums, (const rf_work *w, long npad, int nch, double q[3][20]),
-            (w, npad, nch, q))
+RF_VERSIONS_HAND(void, fit_sums, (const rf_work *w, long npad, int nch, double q[3][20]),
+                 (w, npad, nch, q), fit_sums_avx2, fit_sums_sse2)
 
 /* A x = b for symmetric positive semi-definite A (k <= 6), with the tiny ridge
  * of training/refine.py _solve_spd; Gaussian elimination with partial pivoting. */
@@ -1617,14 +1644,7 @@ static void evaluate(const rf_texture *t, int lev, rf_work *w, const double R[3]
     for (int m = A_V0; m <= A_V2; m++)
         for (long k = np; k < npad; k++) w->a[m][k] = 0;
     double q[3][20], oo[3];
-#if defined(RF_X86_GCC) && RF_VL == 16
-    if (rf_version() == RF_V_AVX2)
-        fit_sums_avx2(w, npad, w->gray ? 1 : 3, q);
-    else if (rf_version() == RF_V_BASELINE)
-        fit_sums_sse2(w, npad, w->gray ? 1 : 3, q);
-    else
-#endif
-        fit_sums(w, npad, w->gray ? 1 : 3, q);
+    fit_sums(w, npad, w->gray ? 1 : 3, q);
     if (w->gray) memcpy(q[1], q[0], sizeof q[0]), memcpy(q[2], q[0], sizeof q[0]);
     memset(fit, 0, sizeof *fit);
     for (int c = 0; c < 3; c++) {
@@ -2013,8 +2033,6 @@ RF_BODY double colour_ratio_body(const rf_work *w, const rf_fit *fit)
     }
     return colour_of_sums(w, fit, S);
 }
-RF_VERSIONS(double, colour_ratio, (const rf_work *w, const rf_fit *fit), (w, fit))
-
 #if defined(RF_X86_GCC) && RF_VL == 16
 /* colour_ratio_body with AVX2: its 8 double lanes as two vectors of 4, each
  * half on its own, the sums of the frame apart from those of the rendering
@@ -2061,6 +2079,9 @@ colour_ratio_avx2(const rf_work *w, const rf_fit *fit)
     return colour_of_sums(w, fit, S);
 }
 #endif
+/* (the baseline's colour ratio is the generic loop, colour_ratio_v0) */
+RF_VERSIONS_HAND(double, colour_ratio, (const rf_work *w, const rf_fit *fit), (w, fit),
+                 colour_ratio_avx2, colour_ratio_v0)
 
 int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx, double cy,
               double r, const double R0[3][3], double focal_px, int steps, rf_out *out, char *err,
@@ -2177,12 +2198,7 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
     out->colour = NAN;
     if (!w->gray) {
         if (!at_final) evaluate(t, 0, w, R, cx, cy, r, focal_px, &fit0);
-#if defined(RF_X86_GCC) && RF_VL == 16
-        if (rf_version() == RF_V_AVX2)
-            out->colour = colour_ratio_avx2(w, &fit0);
-        else
-#endif
-            out->colour = colour_ratio(w, &fit0);
+        out->colour = colour_ratio(w, &fit0);
     }
     memcpy(out->R, R, sizeof R);
     rf_matrix_to_euler(R, out->euler);
