@@ -7,11 +7,11 @@ round at the floor scale those rays drop out and both are within 0.5 px and 0.5 
 (0.46 and 0.49 px; 0.27 and 0.49 px with the sphere's tangent tries, which alone also bring the
 edge frame within, so the rig frame is the one that guards the floor round by itself, by
 0.04 px), and the C runtime gives the same circles as Python."""
-import cv2
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import CAMERA, assert_same_circles_in_c, circle_error, params, render_frames
+from v2_raycast_cases import (CAMERA, assert_same_circles_in_c, assert_within_limits, circle_error, params,
+                              render_seeded)
 
 FRAMES = [(("edge", 15, "6.643_15.297_-26.329.png"), 0), (("rig", 39, "2.261_0.299_9.715.png"), 121)]
 
@@ -19,15 +19,12 @@ FRAMES = [(("edge", 15, "6.643_15.297_-26.329.png"), 0), (("rig", 39, "2.261_0.2
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     folder = tmp_path_factory.mktemp("limb")
-    return [f for case, seed in FRAMES for f in render_frames(folder, [case], seed)]
+    return render_seeded(folder, FRAMES)
 
 
 def test_last_round_at_the_floor_scale(frames, monkeypatch):
     p = params()
-    imgs = [cv2.imread(str(path), cv2.IMREAD_COLOR) for path, _ in frames]
-    for img, (path, truth) in zip(imgs, frames):
-        ec, er = circle_error(pp.find_sphere(img, p, CAMERA), truth)
-        assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
+    imgs = assert_within_limits(frames, p)
     # the last round at the median-based scale, as every other round: both off centre (what
     # this guards)
     monkeypatch.setattr(pp, "_tukey_floor_weights", pp._tukey_weights)

@@ -9,11 +9,11 @@ dark backdrop: the steepest step lies inside the rim) was fitted 0.69 % small; `
 0.72 px off with the outermost edges taken once (about the first circle only), 0.49 px with them
 taken again after half the fit's rounds. All four are now within 0.5 px and 0.5 % of the truth,
 and the C runtime gives the same circles as Python."""
-import cv2
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import CAMERA, assert_same_circles_in_c, circle_error, params, render_frames
+from v2_raycast_cases import (CAMERA, assert_same_circles_in_c, assert_within_limits, circle_error, params,
+                              render_frames)
 
 FRAMES = [("rig", 84, "-14.463_5.02_-17.423.png"), ("shifts", 83, "-9.616_0.909_20.38.png"),
           ("edge", 78, "5.631_1.429_10.747.png"), ("rig", 46, "-4.401_15.44_10.613.png")]
@@ -26,10 +26,7 @@ def frames(tmp_path_factory):
 
 def test_rim_and_outermost_edges(frames, monkeypatch):
     p = params()
-    imgs = [cv2.imread(str(path), cv2.IMREAD_COLOR) for path, _ in frames]
-    for img, (path, truth) in zip(imgs, frames):
-        ec, er = circle_error(pp.find_sphere(img, p, CAMERA), truth)
-        assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
+    imgs = assert_within_limits(frames, p)
     # without the refit the `shifts` and `edge` frames stay off centre (what this guards)
     monkeypatch.setattr(pp, "_outermost", lambda rays, peaks, dirs, fit, p: fit[:3])
     for i in (1, 2):

@@ -6,11 +6,11 @@ lit side: `edge` frame 10 of seed 135 was 3.84 px off centre (support 0.52), `ri
 seed 121 1.60 px (0.62); the larger circles from the same centre (_grow) do not leave it. From
 the tangent circles both are within 0.5 px and 0.5 % of the truth (0.05 and 0.28 px), and the C
 runtime gives the same circles as Python."""
-import cv2
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import CAMERA, assert_same_circles_in_c, circle_error, params, render_frames
+from v2_raycast_cases import (CAMERA, assert_same_circles_in_c, assert_within_limits, circle_error, params,
+                              render_seeded)
 
 FRAMES = [(("edge", 10, "-3.169_-27.968_6.154.png"), 135), (("rig", 28, "-3.816_3.41_-6.668.png"), 121)]
 
@@ -18,15 +18,12 @@ FRAMES = [(("edge", 10, "-3.169_-27.968_6.154.png"), 135), (("rig", 28, "-3.816_
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tangent")
-    return [f for case, seed in FRAMES for f in render_frames(folder, [case], seed)]
+    return render_seeded(folder, FRAMES)
 
 
 def test_tangent_circles(frames, monkeypatch):
     p = params()
-    imgs = [cv2.imread(str(path), cv2.IMREAD_COLOR) for path, _ in frames]
-    for img, (path, truth) in zip(imgs, frames):
-        ec, er = circle_error(pp.find_sphere(img, p, CAMERA), truth)
-        assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
+    imgs = assert_within_limits(frames, p)
     # without the tangent tries: both more than a pixel off centre (what this guards)
     monkeypatch.setattr(pp, "_tangent", lambda img, dirs, fit, p: fit)
     for img, (path, truth) in zip(imgs, frames):

@@ -1,5 +1,5 @@
 """Shared by the sphere-crop-v2 regression tests on frames of the independent ray-caster
-(test_v2_weak_fit.py, test_v2_rim.py, test_v2_unanswered.py): the shipped model's localisation
+(test_v2_weak_fit.py, test_v2_rim.py, test_v2_unanswered.py, test_v2_limb.py, test_v2_tangent.py): the shipped model's localisation
 parameters, the reference camera file, the frames made again from (family, seed, index) (seed 0's
 as build/realscene-final holds them), the error measure of docs/bench/localise.md, and the check
 that the C runtime finds the circle Python finds."""
@@ -44,6 +44,21 @@ def render_frames(folder, cases, seed=0):
         out.append((path, (cx - 0.5, cy - 0.5, r)))
     return out
 
+
+
+def render_seeded(folder, cases):
+    """render_frames for ((family, index[, name]), seed) pairs, in their order."""
+    return [f for case, seed in cases for f in render_frames(folder, [case], seed)]
+
+
+def assert_within_limits(frames, p):
+    """Every frame's circle within 0.5 px and 0.5 % of its truth (docs/bench/localise.md's
+    limits); returns the decoded frames, for the same checks with a step switched off."""
+    imgs = [cv2.imread(str(path), cv2.IMREAD_COLOR) for path, _ in frames]
+    for img, (path, truth) in zip(imgs, frames):
+        ec, er = circle_error(pp.find_sphere(img, p, CAMERA), truth)
+        assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
+    return imgs
 
 def circle_error(found, truth):
     """(centre error in px, radius error in %)."""
