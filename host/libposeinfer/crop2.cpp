@@ -1568,24 +1568,16 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
         // order) lies between ratio times each of them: when both of them
         // are among those values the peak passes, when neither it fails;
         // counted, the median taken only otherwise
-        if (ratio >= 0.0) {
-            const size_t m = count_scaled_le(fl.data(), nf, ratio, cmax);
-            if (m >= nf / 2 + 1) {
-                supported(k);
-                continue;
-            }
-            if (m < (nf - 1) / 2 + 1) {
-                if (sides_clear(rs.score.data(), fi.data(), ni, nf - ni, ratio, cmax, sides_tmp))
-                    supported(k);
-                continue;
-            }
-        }
-        const double t = ratio * median_of(fl.data(), fl.size());
-        if (cmax >= t) {
-            supported(k);
-            continue;
-        }
-        if (sides_clear(rs.score.data(), fi.data(), ni, fi.size() - ni, ratio, cmax, sides_tmp))
+        bool whole;
+        const size_t m = ratio >= 0.0 ? count_scaled_le(fl.data(), nf, ratio, cmax) : 0;
+        if (ratio >= 0.0 && m >= nf / 2 + 1)
+            whole = true;
+        else if (ratio >= 0.0 && m < (nf - 1) / 2 + 1)
+            whole = false;
+        else
+            whole = cmax >= ratio * median_of(fl.data(), nf);
+        // else the flank's two sides judged apart
+        if (whole || sides_clear(rs.score.data(), fi.data(), ni, nf - ni, ratio, cmax, sides_tmp))
             supported(k);
     }
     keep->off[(size_t)K] = (int32_t)keep->pos.size();
