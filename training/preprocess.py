@@ -952,6 +952,18 @@ def _support(img, dirs, cx, cy, r, p):
     return int(_support_rays(img, dirs, cx, cy, r, p).sum()) / len(dirs)
 
 
+def _tangent_tries(img, dirs, cx, cy, r, p):
+    """The circles tried from one tangent circle (cx, cy, r) of _tangent: where fine_passes - 1
+    passes from it lead (None when a fit fails), then the tangent circle itself. Where the limb
+    is dark against a dark backdrop over a wide arc (a third of the rim), the rim's steps there
+    are weak (7-21 against texture bands' 20-50 a few pixels inside), and the passes from a
+    tangent circle lying on the rim slide back to the bands: the circle itself is the better
+    supported (rig-unseen frame 25 of seed 401: the passes' circles 0.45 and below, the fit
+    0.453 at 3.3 px off centre, the tangent circle 0.500 at 0.4 px; _outermost and _rim take it
+    from there to 0.23 px)."""
+    return _passes(img, dirs, cx, cy, r, p), (cx, cy, r)
+
+
 def _tangent(img, dirs, fit, p):
     """The sphere's weakly supported fit tried again from larger circles internally tangent to it
     where its support lies: where the limb darkens to the backdrop's level on one side, the fine
@@ -960,9 +972,10 @@ def _tangent(img, dirs, fit, p):
     towards the lit side (support 0.45-0.62) that _grow's larger circles from the same centre do
     not leave. Here the supported rays' directions, summed in ray order, point to the lit arc;
     from the circle with the radius fine_window_px and 2 fine_window_px larger and the centre as
-    far the other way (tangent to the fit there), fine_passes - 1 passes each (as _grow's), then
-    its support; the best supported of the fit and these two (the fit on ties) replaces it;
-    again from the new circle while one of the two replaced it and its support is below
+    far the other way (tangent to the fit there), fine_passes - 1 passes each (as _grow's), and
+    that circle itself (_tangent_tries), then their support; the best supported of the fit and
+    these four (the fit on ties, then the first) replaces it;
+    again from the new circle while one of them replaced it and its support is below
     (1 + min_support) / 2, at most GROW_ROUNDS tries. Only for the sphere, after every decision
     (which circle is the sphere, cut, two spheres): it moves the sphere's circle, never whether
     the frame is answered. Returns (cx, cy, r, support)."""
@@ -984,14 +997,14 @@ def _tangent(img, dirs, fit, p):
         cur, cur_sup = best, sup
         for k in (1, 2):
             d = k * p["fine_window_px"]
-            c = _passes(img, dirs, best[0] - d * ux, best[1] - d * uy, best[2] + d, p)
-            if c is None:
-                continue
-            cx, cy, r = c
-            t = _support_rays(img, dirs, cx, cy, r, p)
-            s = int(t.sum()) / len(dirs)
-            if s > cur[3]:
-                cur, cur_sup = (cx, cy, r, s), t
+            for c in _tangent_tries(img, dirs, best[0] - d * ux, best[1] - d * uy, best[2] + d, p):
+                if c is None:
+                    continue
+                cx, cy, r = c
+                t = _support_rays(img, dirs, cx, cy, r, p)
+                s = int(t.sum()) / len(dirs)
+                if s > cur[3]:
+                    cur, cur_sup = (cx, cy, r, s), t
         if cur is best:
             break
         best, sup = cur, cur_sup

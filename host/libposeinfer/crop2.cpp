@@ -1680,10 +1680,12 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
 // side, off towards the lit side. The supported rays' directions, summed in
 // ray order, point there; from the radius fine_window_px and 2
 // fine_window_px larger with the centre as far the other way, fine_passes -
-// 1 passes each, then the support; the best supported of the fit and these
-// (the fit on ties) replaces it; again from the new circle while one
-// replaced it and it is still below (1 + min_support) / 2, at most
-// grow_rounds tries. Only for the sphere, after every decision.
+// 1 passes each, and that circle itself (where the dark arc's rim steps are
+// weak, the passes from a circle on the rim slide back to the bands inside
+// it: preprocess.py _tangent_tries), then the support; the best supported of
+// the fit and these (the fit on ties, then the first) replaces it; again from
+// the new circle while one replaced it and it is still below (1 +
+// min_support) / 2, at most grow_rounds tries. Only for the sphere, after every decision.
 // *rays holds the support rays of *fit, and of the kept circle after;
 // *spare is scratch.
 void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
@@ -1704,15 +1706,19 @@ void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p
         bool moved = false;
         for (int k = 1; k <= 2; k++) {
             const double d = k * p->fine_window_px;
-            double cx = start.cx - d * ux, cy = start.cy - d * uy, r = start.r + d;
-            if (!passes_from(f, dirs, p, &cx, &cy, &r)) continue;
-            const double sup = support(f, dirs, cx, cy, r, p, spare, tside);
-            if (sup > fit->support) {
-                std::swap(*rays, *spare);
-                *fit = {cx, cy, r, sup};
-                nside[0] = tside[0];
-                nside[1] = tside[1];
-                moved = true;
+            const double sx = start.cx - d * ux, sy = start.cy - d * uy, sr = start.r + d;
+            // the passes' circle, then the tangent circle itself
+            for (int w = 0; w < 2; w++) {
+                double cx = sx, cy = sy, r = sr;
+                if (w == 0 && !passes_from(f, dirs, p, &cx, &cy, &r)) continue;
+                const double sup = support(f, dirs, cx, cy, r, p, spare, tside);
+                if (sup > fit->support) {
+                    std::swap(*rays, *spare);
+                    *fit = {cx, cy, r, sup};
+                    nside[0] = tside[0];
+                    nside[1] = tside[1];
+                    moved = true;
+                }
             }
         }
         if (!moved) break;

@@ -226,7 +226,8 @@ def test_tangent_tries_are_capped(monkeypatch):
     # every tangent try moves the sphere's weak fit and raises its support, never to
     # (1 + min_support) / 2: they stop after GROW_ROUNDS rounds, each from the circle before
     # moved against its supported rays' direction and grown by fine_window_px and by 2
-    # fine_window_px (here the second try is the better supported and is kept)
+    # fine_window_px, each the passes' circle and the circle itself (here the last try is the
+    # best supported and is kept)
     p = pp.params()
     K = p["rays"]
     dirs = pp._ray_dirs(K)
@@ -243,8 +244,8 @@ def test_tangent_tries_are_capped(monkeypatch):
     monkeypatch.setattr(pp, "_fit_rays", lambda cands, dirs, ox, oy, cx, cy, r, p: (cx, cy, r, []))
     fit = (320.0, 256.0, 100.0, 11 / K)
     out = pp._tangent(None, dirs, fit, p)
-    # per round: the fit's rays (the first call only), then the two tries'
-    assert len(calls) == 1 + 2 * pp.GROW_ROUNDS
+    # per round: the fit's rays (the first call only), then the four tries'
+    assert len(calls) == 1 + 4 * pp.GROW_ROUNDS
     assert out[3] == (10 + len(calls)) / K and out[2] == 100.0 + pp.GROW_ROUNDS * 2 * p["fine_window_px"]
     # the first round's first try: tangent to the fit on its supported arc (rays 0 .. 10)
     mx, my = pp._seqsum(dirs[:11, 0].tolist()), pp._seqsum(dirs[:11, 1].tolist())
@@ -260,3 +261,4 @@ def test_tangent_tries_are_capped(monkeypatch):
     assert "for (int t = 0; t < grow_rounds && fit->support < decisive; t++)" in body
     assert "for (int k = 1; k <= 2; k++)" in body
     assert "const double d = k * p->fine_window_px;" in body
+    assert "for (int w = 0; w < 2; w++)" in body
