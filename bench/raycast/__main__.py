@@ -17,7 +17,8 @@ def get_args_parser():
         description="Render evaluation frames of the textured sphere with the independent ray-caster: "
                     "<x>_<y>_<z>.png and truth.jsonl (pose, circle, scene) in --out.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--family", required=True, choices=families.FAMILIES, help="scene family")
+    ap.add_argument("--family", required=True, choices=families.FAMILIES + families.EXTRA_FAMILIES,
+                    help="scene family")
     ap.add_argument("--n", type=int, default=100, help="frames")
     ap.add_argument("--seed", type=int, default=0, help="seed (each family draws its own frames from it)")
     ap.add_argument("--out", required=True, help="output folder")

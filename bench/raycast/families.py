@@ -21,6 +21,10 @@
   confident pose): no sphere on the post (`none`), two spheres (`two`), or
   the sphere cut by a frame edge, 20-45 % of its outline outside (`cut`).
   Their truth line says "expect": "refuse"; `none` has no circle.
+- `two-edge` (not one of the evaluation's FAMILIES, rendered only when named):
+  `refuse` frames of the kind `two` whose second sphere lies partly beyond
+  the left or right frame edge (10-45 % of its outline outside), the first
+  whole in the frame.
 Each frame's scene depends only on (family, seed, index), so frames can be
 drawn in any order or in parallel and drawn again identically.
 """
@@ -31,7 +35,10 @@ import numpy as np
 from . import backgrounds, render
 
 FAMILIES = ("clean", "shifts", "rig", "rig-unseen", "edge", "refuse")
-_FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES)}
+# Families drawn only when named (not in an evaluation's default list); appended after FAMILIES so
+# that no family's seed stream, and so no frame drawn before, changes.
+EXTRA_FAMILIES = ("two-edge",)
+_FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES + EXTRA_FAMILIES)}
 MAX_HIDDEN_RIM = 0.15
 POSE_RANGE = 30.0
 
@@ -195,12 +202,56 @@ def _refuse(rng, cam):
     return s
 
 
+def _outline_x(x_mm, depth, big, f_px):
+    """Where a sphere of radius `big` at lateral offset x_mm and depth `depth` from the camera
+    (in its horizontal plane) projects: (centre, radius) in px along the image row, from the two
+    rays that graze it (an off-axis sphere's outline is wider than f R / depth)."""
+    a = math.atan2(x_mm, depth)
+    half = math.asin(big / math.hypot(x_mm, depth))
+    lo, hi = f_px * math.tan(a - half), f_px * math.tan(a + half)
+    return (lo + hi) / 2, (hi - lo) / 2
+
+
+def _two_edge(rng, cam):
+    """A `refuse` frame of the kind `two` whose second sphere has a share in [0.1, 0.45] of its
+    outline beyond the left or right frame edge (its outline's centre at r2 cos(pi f) from the
+    edge, r2 its half width along the row through the centres), the first whole in the frame
+    (6 px to spare), 2.15-2.4 first radii from it (less where the frame has no room)."""
+    s = _rig(rng, cam)
+    s["expect"] = "refuse"
+    s["refuse"] = "two"
+    s["mount"] = None
+    big, f_px = cam.radius_mm, cam.f_px
+    r = cam.at(distance_mm=s["distance_mm"]).radius_px()
+    side = 1.0 if rng.random() < 0.5 else -1.0          # +1: the second sphere beyond the right edge
+    share = float(rng.uniform(0.1, 0.45))
+    gap = float(rng.uniform(2.15, 2.4))
+    z = float(rng.uniform(-0.5, 0.5) * big)
+    y = float(rng.uniform(-0.3, 0.3) * big)
+    room = max(0.0, cam.height / 2 - r - 6)
+    v1 = cam.height / 2 + rng.uniform(-room, room)
+    depth = s["distance_mm"] - z
+    # the second outline's radius depends on its offset, the offset on its radius: a few rounds
+    x_mm, r2 = 0.0, r
+    for _ in range(6):
+        u2 = cam.width / 2 + side * (cam.width / 2 - r2 * math.cos(math.pi * share))
+        u1 = min(max(u2 - side * gap * r, r + 6), cam.width - r - 6)
+        x_mm = (u2 - u1) * depth / f_px
+        c2, r2 = _outline_x(x_mm, depth, big, f_px)
+        x_mm *= (u2 - u1) / c2
+    u0, v0 = cam.principal
+    s["shift_px"] = [float(u1 - u0), float(v1 - v0)]
+    s["others"] = [{"centre_mm": [float(x_mm), y, z], "pose": _pose(rng)}]
+    s["other_outside"] = {"edge": "right" if side > 0 else "left", "share": share}
+    return s
+
+
 _DRAW = {"clean": _clean, "shifts": _shifts, "rig": _rig, "rig-unseen": _rig_unseen, "edge": _edge,
-         "refuse": _refuse}
+         "refuse": _refuse, "two-edge": _two_edge}
 
 
 def draw_scene(family, seed, index, cam):
     """The scene of frame `index` of `family` for `seed` (a JSON-ready dict, render.render's input)."""
     if family not in _DRAW:
-        raise ValueError(f"unknown family {family!r} (valid: {', '.join(FAMILIES)})")
+        raise ValueError(f"unknown family {family!r} (valid: {', '.join(FAMILIES + EXTRA_FAMILIES)})")
     return _DRAW[family](frame_rng(family, seed, index), cam)
