@@ -50,7 +50,8 @@ def get_args_parser():
                     help="texture on the sphere (default build/textures/Texture_3_color.png; make textures)")
     ap.add_argument("--camera", default=None,
                     help="camera file for the frames and the runtime (default: the reference camera)")
-    ap.add_argument("--families", nargs="+", default=list(families.FAMILIES), choices=families.FAMILIES,
+    ap.add_argument("--families", nargs="+", default=list(families.FAMILIES),
+                    choices=families.FAMILIES + families.EXTRA_FAMILIES,
                     help="families to evaluate (default all)")
     ap.add_argument("--n", type=int, default=100, help="frames per family (default 100)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the frames (default 0)")

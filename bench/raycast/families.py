@@ -25,6 +25,11 @@
   `refuse` frames of the kind `two` whose second sphere lies partly beyond
   the left or right frame edge (10-45 % of its outline outside), the first
   whole in the frame.
+- `rig-photo` (drawn only when named): `rig` in front of a real photograph
+  (one of backgrounds.PHOTOS, bundled with scikit-image and matplotlib),
+  zoomed 1-2.5x past covering the frame, cropped anywhere, mirrored on half
+  the frames, gain 0.6-1.4, Gaussian defocus 0.5-2 px; the mount is the
+  rig's round post or, on half the frames, one of rig-unseen's kinds.
 Each frame's scene depends only on (family, seed, index), so frames can be
 drawn in any order or in parallel and drawn again identically.
 """
@@ -37,7 +42,7 @@ from . import backgrounds, render
 FAMILIES = ("clean", "shifts", "rig", "rig-unseen", "edge", "refuse")
 # Families drawn only when named (not in an evaluation's default list); appended after FAMILIES so
 # that no family's seed stream, and so no frame drawn before, changes.
-EXTRA_FAMILIES = ("two-edge",)
+EXTRA_FAMILIES = ("two-edge", "rig-photo")
 _FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES + EXTRA_FAMILIES)}
 MAX_HIDDEN_RIM = 0.15
 POSE_RANGE = 30.0
@@ -104,15 +109,20 @@ def _mount_ok(scene, cam):
     return render.hidden_rim_fraction(scene, cam) <= MAX_HIDDEN_RIM
 
 
+def _round_post(rng):
+    """The `rig` family's mount: a round post under the sphere, dark, grey or metal, tilted."""
+    return {"type": "post", "shape": "cylinder", "size_mm": float(rng.uniform(2.5, 7.0)),
+            "tilt_x_deg": float(rng.uniform(-10, 10)), "tilt_z_deg": float(rng.uniform(-5, 5)),
+            "colour": list(_DARK_COLOURS[rng.integers(len(_DARK_COLOURS))]),
+            "specular": float(rng.uniform(0.05, 0.5)), "power": float(rng.uniform(10, 60))}
+
+
 def _rig(rng, cam):
     s = _shifts(rng, cam)
     kind = str(rng.choice(["uniform", "gradient", "clutter"]))
     s["background"] = backgrounds.draw(kind, rng, cam.width, cam.height)
     for _ in range(20):
-        s["mount"] = {"type": "post", "shape": "cylinder", "size_mm": float(rng.uniform(2.5, 7.0)),
-                      "tilt_x_deg": float(rng.uniform(-10, 10)), "tilt_z_deg": float(rng.uniform(-5, 5)),
-                      "colour": list(_DARK_COLOURS[rng.integers(len(_DARK_COLOURS))]),
-                      "specular": float(rng.uniform(0.05, 0.5)), "power": float(rng.uniform(10, 60))}
+        s["mount"] = _round_post(rng)
         if _mount_ok(s, cam):
             break
     s["vignetting"] = float(rng.uniform(0, 0.4))
@@ -246,8 +256,23 @@ def _two_edge(rng, cam):
     return s
 
 
+def _rig_photo(rng, cam):
+    """`rig` in front of a real photograph (backgrounds.PHOTOS, drawn by backgrounds.draw("photo")):
+    half the frames the rig's round post, half a mount of rig-unseen's kinds."""
+    s = _shifts(rng, cam)
+    s["background"] = backgrounds.draw("photo", rng, cam.width, cam.height)
+    unseen = bool(rng.random() < 0.5)
+    for _ in range(20):
+        s["mount"] = _unseen_mount(rng) if unseen else _round_post(rng)
+        if _mount_ok(s, cam):
+            break
+    s["vignetting"] = float(rng.uniform(0, 0.4))
+    s["jpeg"] = int(rng.integers(60, 96)) if rng.random() < 0.8 else 0
+    return s
+
+
 _DRAW = {"clean": _clean, "shifts": _shifts, "rig": _rig, "rig-unseen": _rig_unseen, "edge": _edge,
-         "refuse": _refuse, "two-edge": _two_edge}
+         "refuse": _refuse, "two-edge": _two_edge, "rig-photo": _rig_photo}
 
 
 def draw_scene(family, seed, index, cam):
