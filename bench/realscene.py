@@ -279,6 +279,8 @@ def scene_tags(scene):
     if bg == "gradient" and scene["background"]["a"][0] == scene["background"]["a"][1] == \
             scene["background"]["a"][2] and (scene["background"]["a"][0] < 0.1 or scene["background"]["a"][0] > 0.9):
         bg = "near-black" if scene["background"]["a"][0] < 0.1 else "near-white"
+    if bg == "photo":                      # rig-photo: one row per photograph
+        bg = "photo " + scene["background"]["photo"]
     return {"mount": mtag, "backdrop": bg, "refuse": scene.get("refuse")}
 
 
