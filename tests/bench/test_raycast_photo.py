@@ -34,7 +34,7 @@ def _rounded(v):
 
 
 # Scenes of frames (0, 0), (0, 1), (111, 5) of each family at the reference camera, as drawn before
-# rig-photo was added (commit 896d86f): sha256 of their JSON, first 16 hex digits.
+# rig-photo was added (commit cbad8cf): sha256 of their JSON, first 16 hex digits.
 BEFORE = {
     "clean": "8eb13cd78e93d769",
     "shifts": "1a6fdfd7720b2b61",
