@@ -1921,6 +1921,109 @@ double rim_outside(double cx, double cy, double r, int h, int w)
     return out / 256.0;
 }
 
+// A second sphere partly outside the frame is judged by its rays in the
+// frame when at least this share of them are in it (training/preprocess.py
+// SECOND_IN_FRAME: the same value, and its measured reason).
+constexpr double second_in_frame = 0.7;
+
+// The sphere's circle cut by the frame edge is named as one only when its
+// inside is no darker than its edge (preprocess.py CUT_SHADE: the same).
+constexpr double cut_shade = 1.0;
+
+// How many rays from (cx, cy) keep the support's samples (RayScores within
+// support_flank_px of r) in the frame: both ends inside, as RayScores::ray
+// tests them (preprocess.py _in_frame).
+int in_frame(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
+             const pp_params *p)
+{
+    const int K = (int)dirs.size() / 2;
+    const long m = ifloor(p->support_flank_px * 2.0);
+    const double r0 = r + (-1.0 - (double)m) * 0.5, r1 = r + (double)(m + 1) * 0.5;
+    int n = 0;
+    for (int k = 0; k < K; k++) {
+        const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+        n += inside(f, cx + r0 * ux, cy + r0 * uy) && inside(f, cx + r1 * ux, cy + r1 * uy);
+    }
+    return n;
+}
+
+// Circle c's support over its rays in the frame (*s), when at least `share`
+// of its rays are in the frame; false otherwise (preprocess.py
+// _in_frame_support).
+bool in_frame_support(const Frame &f, const std::vector<double> &dirs, const Found &c,
+                      const pp_params *p, double share, double *s)
+{
+    const int K = (int)dirs.size() / 2;
+    const int n = in_frame(f, dirs, c.cx, c.cy, c.r, p);
+    if (n == 0 || n < share * K) return false;
+    *s = c.support * K / n;
+    return true;
+}
+
+// Whether circle c may be a lit sphere cut by the frame edge: its inside no
+// darker than its edge, or too little of it in the frame to tell
+// (preprocess.py _lit).
+bool lit(const Frame &f, const std::vector<double> &dirs, const Found &c, const pp_params *p)
+{
+    double s;
+    return !limb_shading(f, dirs, c.cx, c.cy, c.r, p, &s) || s >= cut_shade;
+}
+
+// Whether circle b is a second sphere beside sphere a: neither centre inside
+// the other circle, radii within a factor 1 + 2 r_tol, b's inside not flat
+// where a's is shaded (preprocess.py _second).
+bool second(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
+            const pp_params *p)
+{
+    const double rr = std::max(a.r, b.r);
+    if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) return false;
+    return std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r) &&
+           !flat(f, dirs, a, b, p);
+}
+
+void cut_message(double cut, const pp_params *p, char *err, size_t errlen)
+{
+    pi_seterrn(
+        err, errlen,
+        "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
+        100 * cut, 100 * p->max_cut);
+}
+
+void two_spheres(const Found &a, const Found &b, char *err, size_t errlen)
+{
+    pi_seterrn(err, errlen,
+               "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
+               a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
+}
+
+// The error when no circle is the sphere (preprocess.py _no_sphere_message):
+// the cut sphere's, of the best supported fit (first on ties) of a radius in
+// range with more than max_cut of its rim outside the frame, at least half
+// its rays in the frame, min_support of them supporting it and its inside no
+// darker than its edge; without one, no sphere found.
+void no_sphere(const Frame &f, const std::vector<double> &dirs, const std::vector<Found> &all,
+               const pp_params *p, double rmin, double rmax, char *err, size_t errlen)
+{
+    long best = -1;
+    double best_cut = 0.0;
+    for (size_t i = 0; i < all.size(); i++) {
+        const Found &c = all[i];
+        if (best >= 0 && !(c.support > all[(size_t)best].support)) continue;
+        if (!(rmin * 0.9 <= c.r && c.r <= rmax * 1.1)) continue;
+        const double cut = rim_outside(c.cx, c.cy, c.r, f.h, f.w);
+        if (!(cut > p->max_cut)) continue;
+        double s, sh;
+        if (!in_frame_support(f, dirs, c, p, 0.5, &s) || !(s >= p->min_support)) continue;
+        if (!limb_shading(f, dirs, c.cx, c.cy, c.r, p, &sh) || !(sh >= cut_shade)) continue;
+        best = (long)i;
+        best_cut = cut;
+    }
+    if (best >= 0)
+        cut_message(best_cut, p, err, errlen);
+    else
+        pi_seterrn(err, errlen, "no sphere found in frame");
+}
+
 } // namespace
 
 int set_avx512(int on)
@@ -2082,32 +2185,36 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     for (size_t i = 0; i < fits.size(); i++)
         if (ia < 0 || all[fits[i]].support > all[fits[(size_t)ia]].support) ia = (long)i;
     if (ia < 0) {
-        pi_seterrn(err, errlen, "no sphere found in frame");
+        no_sphere(f, dirs, all, p, rmin, rmax, err, errlen);
         return -1;
     }
     const Found &a = all[fits[(size_t)ia]];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
-        pi_seterrn(
-            err, errlen,
-            "sphere cut by the frame edge (%.0f %% of its rim outside the frame, at most %.0f %%)",
-            100 * cut, 100 * p->max_cut);
+        // a circle darker inside than at its edge (a disk of the clutter) is no cut sphere
+        if (lit(f, dirs, a, p))
+            cut_message(cut, p, err, errlen);
+        else
+            pi_seterrn(err, errlen, "no sphere found in frame");
         return -1;
     }
     // another well supported circle of about its size, neither centre inside
     // the other circle, its inside not flat where the sphere's is shaded: a
     // second sphere
-    for (size_t i = 0; i < fits.size(); i++) {
-        const Found &b = all[fits[i]];
-        if ((long)i == ia) continue;
-        const double rr = std::max(a.r, b.r);
-        if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) continue;
-        if (std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r) &&
-            !flat(f, dirs, a, b, p)) {
-            pi_seterrn(
-                err, errlen,
-                "two spheres in frame (circles at (%.1f, %.1f) r %.1f and (%.1f, %.1f) r %.1f)",
-                a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
+    for (size_t i = 0; i < fits.size(); i++)
+        if ((long)i != ia && second(f, dirs, a, all[fits[i]], p)) {
+            two_spheres(a, all[fits[i]], err, errlen);
+            return -1;
+        }
+    // a second sphere partly outside the frame: judged by its rays in the
+    // frame (second_in_frame)
+    for (const Found &b : all) {
+        // judged above, or not of a sphere's size
+        if (b.support >= p->min_support || !(rmin * 0.9 <= b.r && b.r <= rmax * 1.1)) continue;
+        double s_in;
+        if (in_frame_support(f, dirs, b, p, second_in_frame, &s_in) && s_in >= p->min_support &&
+            second(f, dirs, a, b, p)) {
+            two_spheres(a, b, err, errlen);
             return -1;
         }
     }
