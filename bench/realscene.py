@@ -52,7 +52,7 @@ def get_args_parser():
                     help="camera file for the frames and the runtime (default: the reference camera)")
     ap.add_argument("--families", nargs="+", default=list(families.FAMILIES),
                     choices=families.FAMILIES + families.EXTRA_FAMILIES,
-                    help="families to evaluate (default: all of FAMILIES; two-edge and rig-photo only when named)")
+                    help="families to evaluate (default: all of FAMILIES; two-edge, rig-photo and rig-sensor only when named)")
     ap.add_argument("--n", type=int, default=100, help="frames per family (default 100)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the frames (default 0)")
     ap.add_argument("--supersample", type=int, default=4, help="rays per pixel per side (default 4)")

@@ -30,6 +30,13 @@
   zoomed 1-2.5x past covering the frame, cropped anywhere, mirrored on half
   the frames, gain 0.6-1.4, Gaussian defocus 0.5-2 px; the mount is the
   rig's round post or, on half the frames, one of rig-unseen's kinds.
+- `rig-sensor` (drawn only when named): `rig` through a colour camera's
+  pipeline (sensor.py): lateral chromatic aberration (red and blue scaled
+  by 1 +- 0.0005-0.003 about the principal point), a Bayer mosaic (RGGB,
+  BGGR, GRBG or GBRG) with noise on the raw, white-balance gains 0.8-1.25,
+  OpenCV demosaicing (bilinear, VNG or EA), gamma, an unsharp mask (amount
+  0-1, sigma 0.5-1.5 px) on 60 % of frames, JPEG. The truth circle is the
+  green (reference) channel's outline.
 Each frame's scene depends only on (family, seed, index), so frames can be
 drawn in any order or in parallel and drawn again identically.
 """
@@ -37,12 +44,12 @@ import math
 
 import numpy as np
 
-from . import backgrounds, render
+from . import backgrounds, render, sensor
 
 FAMILIES = ("clean", "shifts", "rig", "rig-unseen", "edge", "refuse")
 # Families drawn only when named (not in an evaluation's default list); appended after FAMILIES so
 # that no family's seed stream, and so no frame drawn before, changes.
-EXTRA_FAMILIES = ("two-edge", "rig-photo")
+EXTRA_FAMILIES = ("two-edge", "rig-photo", "rig-sensor")
 _FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES + EXTRA_FAMILIES)}
 MAX_HIDDEN_RIM = 0.15
 POSE_RANGE = 30.0
@@ -271,8 +278,16 @@ def _rig_photo(rng, cam):
     return s
 
 
+def _rig_sensor(rng, cam):
+    """`rig` through a colour camera's pipeline (sensor.py, its parameters drawn by sensor.draw):
+    lateral colour, Bayer mosaic, white balance, demosaicing, sharpening."""
+    s = _rig(rng, cam)
+    s["sensor"] = sensor.draw(rng)
+    return s
+
+
 _DRAW = {"clean": _clean, "shifts": _shifts, "rig": _rig, "rig-unseen": _rig_unseen, "edge": _edge,
-         "refuse": _refuse, "two-edge": _two_edge, "rig-photo": _rig_photo}
+         "refuse": _refuse, "two-edge": _two_edge, "rig-photo": _rig_photo, "rig-sensor": _rig_sensor}
 
 
 def draw_scene(family, seed, index, cam):

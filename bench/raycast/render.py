@@ -15,13 +15,17 @@ Blinn-Phong sheen, and an ambient term, on the texture's values as albedo.
 Then, in this order: exposure, vignetting (light falls off toward the
 corners), defocus or Gaussian blur (optics), sensor noise (read noise plus
 shot noise), gamma, 8-bit quantisation, JPEG compression and decoding.
+The `rig-sensor` family's scenes carry a "sensor" record: after the optics
+(exposure, vignetting, blur) their frames go through sensor.py's colour
+camera pipeline instead (lateral colour, Bayer mosaic, noise, white balance,
+demosaicing, gamma, sharpening, JPEG).
 """
 import math
 
 import cv2
 import numpy as np
 
-from . import backgrounds, camera, mounts, shapes
+from . import backgrounds, camera, mounts, sensor, shapes
 
 SPHERE, BACKDROP = 0, -1      # hit ids; mount parts are 1, 2, ...; other spheres OTHERS + j
 OTHERS = 1000
@@ -224,9 +228,8 @@ def _disc_kernel(radius):
     return (k / k.sum()).astype(np.float32)
 
 
-def camera_effects(img, scene, cam):
-    """Exposure, vignetting, blur, noise, gamma, 8 bits and JPEG: RGB uint8 [H, W, 3]."""
-    rng = np.random.default_rng(scene["seed"])
+def optics(img, scene, cam):
+    """Exposure, vignetting and blur: what the lens does before the sensor (float RGB)."""
     img = img * np.float32(scene["exposure"])
     vig = scene.get("vignetting", 0.0)
     if vig:
@@ -241,6 +244,13 @@ def camera_effects(img, scene, cam):
             img = cv2.filter2D(img, -1, _disc_kernel(blur["px"]), borderType=cv2.BORDER_REFLECT)
         else:
             img = cv2.GaussianBlur(img, (0, 0), blur["px"], borderType=cv2.BORDER_REFLECT)
+    return img
+
+
+def camera_effects(img, scene, cam):
+    """Exposure, vignetting, blur, noise, gamma, 8 bits and JPEG: RGB uint8 [H, W, 3]."""
+    rng = np.random.default_rng(scene["seed"])
+    img = optics(img, scene, cam)
     noise = scene.get("noise")
     if noise:
         lin = np.clip(img, 0.0, 1.0)
@@ -256,5 +266,9 @@ def camera_effects(img, scene, cam):
 
 
 def render(scene, cam, tex, supersample=4):
-    """RGB uint8 frame [H, W, 3] of `scene` seen by `cam` (texture `tex` from load_texture)."""
-    return camera_effects(radiance(scene, cam, tex, supersample), scene, cam)
+    """RGB uint8 frame [H, W, 3] of `scene` seen by `cam` (texture `tex` from load_texture); a scene
+    with a "sensor" record goes through a colour camera's pipeline (sensor.py) after the optics."""
+    img = radiance(scene, cam, tex, supersample)
+    if scene.get("sensor"):
+        return sensor.pipeline(optics(img, scene, cam), scene, cam)
+    return camera_effects(img, scene, cam)
