@@ -34,13 +34,17 @@ def main(argv=None):
     ap.add_argument("--out", required=True, help="output folder (one sub-folder per variant)")
     ap.add_argument("--texture", default=os.path.join(ROOT, "build", "textures", "Texture_3_color.png"),
                     help="equirectangular texture")
+    ap.add_argument("--camera", default=None, help="camera file (default: the reference camera)")
     ap.add_argument("--supersample", type=int, default=4, help="rays per pixel per side on the sphere and edges")
     args = ap.parse_args(argv)
-    if args.n < 1:
-        sys.exit("sensor_stages: --n must be at least 1")
+    if args.n < 1 or args.supersample < 1:
+        sys.exit("sensor_stages: --n and --supersample must be at least 1")
     if not os.path.isfile(args.texture):
         sys.exit(f"sensor_stages: {args.texture}: no such texture (make textures)")
-    cam = camera.load_camera(None)
+    try:
+        cam = camera.load_camera(args.camera)
+    except camera.CameraFileError as e:
+        sys.exit(f"sensor_stages: {e}")
     tex = render.load_texture(args.texture)
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "camera.json"), "w", encoding="utf-8") as f:
