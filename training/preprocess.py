@@ -57,15 +57,11 @@ DEFAULTS_V2 = {
     # edge_min, thinned across the edge) vote along their gradient direction
     # for (centre, radius bin about coarse_rbin * radius wide); the `candidates`
     # best peaks with at least cand_frac of the best's votes go on, each one
-    # farther than cand_gap times the smallest radius from the ones before (5: on a
-    # fine checkerboard or stripes the backdrop's own circles can outvote the
-    # sphere's; on 1 320 rig, rig-unseen and edge frames of the ray-caster the
-    # sphere's peak was the first in 99.3 %, never below the fourth, but on one
-    # held-out fork-on-checkerboard frame the fifth: one place of margin)
+    # farther than cand_gap times the smallest radius from the ones before
     "coarse_size": 170,
     "coarse_rbin": 0.08,
     "edge_min": 24,
-    "candidates": 5,
+    "candidates": 4,
     "cand_frac": 0.35,
     "cand_gap": 0.25,
     # fine stage, per candidate: `rays` rays from the centre; edge candidates

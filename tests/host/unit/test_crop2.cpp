@@ -33,7 +33,7 @@ static const char *V2 =
     "{\"name\": \"sphere-crop-v2\", \"size\": 128, \"margin\": 1.15, \"mean\": [0.485, 0.456, "
     "0.406], "
     "\"std\": [0.229, 0.224, 0.225], \"r_min_frac\": 0.05, \"r_max_frac\": 0.5, \"r_tol\": 0.15, "
-    "\"coarse_size\": 170, \"coarse_rbin\": 0.08, \"edge_min\": 24, \"candidates\": 5, "
+    "\"coarse_size\": 170, \"coarse_rbin\": 0.08, \"edge_min\": 24, \"candidates\": 4, "
     "\"cand_frac\": 0.35, \"cand_gap\": 0.25, "
     "\"rays\": 128, \"ray_edge_min\": 12, \"consensus_cells\": 4, \"consensus_px\": 4, "
     "\"consensus_step_px\": 2, "
