@@ -1673,6 +1673,18 @@ bool grow(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
     return moved;
 }
 
+// *fit tried from grow's circles again and again (preprocess.py _grown): from
+// the circle it moved to, while that is better supported and still below
+// `until`, at most grow_rounds tries. bank[slot], bank[spare] as grow's.
+void grown(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
+           std::vector<Rays> &bank, size_t slot, size_t spare, bool inward, double until)
+{
+    for (int k = 0; k < grow_rounds && fit->support < until &&
+                    grow(f, dirs, p, fit, bank, slot, spare, inward);
+         k++) {
+    }
+}
+
 // The sphere's weakly supported fit tried again from larger circles
 // internally tangent to it where its support lies (preprocess.py _tangent):
 // where the limb darkens to the backdrop's level on one side, the fine passes
@@ -1930,6 +1942,12 @@ constexpr double second_in_frame = 0.7;
 // inside is no darker than its edge (preprocess.py CUT_SHADE: the same).
 constexpr double cut_shade = 1.0;
 
+// A circle of the sphere's size beside it, supported by at least this share
+// of the rays but below min_support, is tried again as the sphere's weak fit
+// is before it is ruled out as a second sphere (preprocess.py SECOND_RETRY:
+// the same value, and its measured reason).
+constexpr double second_retry = 0.25;
+
 // How many rays from (cx, cy) keep the support's samples (RayScores within
 // support_flank_px of r) in the frame: both ends inside, as RayScores::ray
 // tests them (preprocess.py _in_frame).
@@ -1969,16 +1987,22 @@ bool lit(const Frame &f, const std::vector<double> &dirs, const Found &c, const 
     return !limb_shading(f, dirs, c.cx, c.cy, c.r, p, &s) || s >= cut_shade;
 }
 
-// Whether circle b is a second sphere beside sphere a: neither centre inside
-// the other circle, radii within a factor 1 + 2 r_tol, b's inside not flat
-// where a's is shaded (preprocess.py _second).
-bool second(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
-            const pp_params *p)
+// Whether circles a and b may be two spheres by their geometry: neither
+// centre inside the other circle, radii within a factor 1 + 2 r_tol
+// (preprocess.py _apart).
+bool apart(const Found &a, const Found &b, const pp_params *p)
 {
     const double rr = std::max(a.r, b.r);
     if ((a.cx - b.cx) * (a.cx - b.cx) + (a.cy - b.cy) * (a.cy - b.cy) < rr * rr) return false;
-    return std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r) &&
-           !flat(f, dirs, a, b, p);
+    return std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r);
+}
+
+// Whether circle b is a second sphere beside sphere a: apart, b's inside not
+// flat where a's is shaded (preprocess.py _second).
+bool second(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
+            const pp_params *p)
+{
+    return apart(a, b, p) && !flat(f, dirs, a, b, p);
 }
 
 void cut_message(double cut, const pp_params *p, char *err, size_t errlen)
@@ -2166,14 +2190,11 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         size_t ib = 0;
         for (size_t i = 1; i < all.size(); i++)
             if (all[i].support > all[ib].support) ib = i;
-        // a fit below min_support (no sphere) is tried from smaller circles too, in every try
-        const bool inward = all[ib].support < p->min_support;
         // again from the circle it moved to, while that is better supported and still weak, at
-        // most grow_rounds tries
-        for (int k = 0; k < grow_rounds && all[ib].support < decisive &&
-                        grow(f, dirs, p, &all[ib], bank, ib, all.size(), inward);
-             k++) {
-        }
+        // most grow_rounds tries; a fit below min_support (no sphere) is tried from smaller
+        // circles too, in every try
+        grown(f, dirs, p, &all[ib], bank, ib, all.size(), all[ib].support < p->min_support,
+              decisive);
     }
     // the well supported fits of a radius in range: their indexes into all
     std::vector<size_t> fits;
@@ -2215,6 +2236,22 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         if (in_frame_support(f, dirs, b, p, second_in_frame, &s_in) && s_in >= p->min_support &&
             second(f, dirs, a, b, p)) {
             two_spheres(a, b, err, errlen);
+            return -1;
+        }
+    }
+    // a second sphere whose fit settled on its texture: weak circles of the
+    // sphere's size beside it tried again as the sphere's weak fit is
+    // (second_retry); their support rays' slots are not needed after this
+    for (size_t i = 0; i < all.size(); i++) {
+        const Found &b = all[i];
+        if (i == fits[(size_t)ia] || !(second_retry <= b.support && b.support < p->min_support) ||
+            !(rmin * 0.9 <= b.r && b.r <= rmax * 1.1) || !apart(a, b, p))
+            continue;
+        Found g = b;
+        grown(f, dirs, p, &g, bank, i, all.size(), true, p->min_support);
+        if (g.support >= p->min_support && rmin * 0.9 <= g.r && g.r <= rmax * 1.1 &&
+            second(f, dirs, a, g, p)) {
+            two_spheres(a, g, err, errlen);
             return -1;
         }
     }
