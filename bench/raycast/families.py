@@ -23,8 +23,8 @@
   Their truth line says "expect": "refuse"; `none` has no circle.
 - `two-edge` (not one of the evaluation's FAMILIES, rendered only when named):
   `refuse` frames of the kind `two` whose second sphere lies partly beyond
-  the left or right frame edge (10-45 % of its outline outside), the first
-  whole in the frame.
+  the left or right frame edge (10-45 % of its outline outside, none beyond
+  the top or bottom), the first whole in the frame.
 - `rig-photo` (drawn only when named): `rig` in front of a real photograph
   (one of backgrounds.PHOTOS, bundled with scikit-image and matplotlib),
   zoomed 1-2.5x past covering the frame, cropped anywhere, mirrored on half
@@ -232,8 +232,9 @@ def _outline_x(x_mm, depth, big, f_px):
 def _two_edge(rng, cam):
     """A `refuse` frame of the kind `two` whose second sphere has a share in [0.1, 0.45] of its
     outline beyond the left or right frame edge (its outline's centre at r2 cos(pi f) from the
-    edge, r2 its half width along the row through the centres), the first whole in the frame
-    (6 px to spare), 2.15-2.4 first radii from it (less where the frame has no room)."""
+    edge, r2 its half width along the row through the centres), none beyond the top or bottom, the
+    first whole in the frame (both 6 px to spare vertically), 2.15-2.4 first radii from it (less
+    where the frame has no room)."""
     s = _rig(rng, cam)
     s["expect"] = "refuse"
     s["refuse"] = "two"
@@ -245,9 +246,13 @@ def _two_edge(rng, cam):
     gap = float(rng.uniform(2.15, 2.4))
     z = float(rng.uniform(-0.5, 0.5) * big)
     y = float(rng.uniform(-0.3, 0.3) * big)
-    room = max(0.0, cam.height / 2 - r - 6)
-    v1 = cam.height / 2 + rng.uniform(-room, room)
     depth = s["distance_mm"] - z
+    # the second outline spans the rows v1 - up +- down (_outline_x in the vertical plane: the rows whose
+    # planes through the camera graze the sphere, exact whatever its x); both keep 6 px from top and bottom
+    up, down = _outline_x(y, depth, big, f_px)
+    reach = max(r, abs(up) + down)
+    room = max(0.0, cam.height / 2 - reach - 6)
+    v1 = cam.height / 2 + rng.uniform(-room, room)
     # the second outline's radius depends on its offset, the offset on its radius: a few rounds
     x_mm, r2 = 0.0, r
     for _ in range(6):
