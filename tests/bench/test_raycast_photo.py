@@ -1,9 +1,7 @@
 """The ray-caster's `rig-photo` family (bench/raycast/families.py): the rig's scene in front of a real
 photograph bundled with scikit-image or matplotlib. The family draws and draws again identically from
-(seed, index), its backdrop is the named photo, every listed photo loads offline, and the families
-drawn before it keep their seed streams (their scenes, and so their frames, do not change)."""
-import hashlib
-import json
+(seed, index), its backdrop is the named photo and every listed photo loads offline (that every
+family keeps its seed stream: test_raycast_streams.py)."""
 import math
 import os
 import sys
@@ -20,42 +18,6 @@ from raycast import backgrounds, camera, families, frames, render  # noqa: E402
 # A small frame keeps the test fast: a quarter of the reference frame with 4x the pixel pitch
 # (sphere radius about 33 px instead of 134).
 SMALL = camera.Camera(width=160, height=128, pixel_mm=0.0384)
-
-
-def _rounded(v):
-    """Floats to 6 decimals, so that a last-bit difference of another machine's libm does not count."""
-    if isinstance(v, float):
-        return round(v, 6)
-    if isinstance(v, dict):
-        return {k: _rounded(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_rounded(x) for x in v]
-    return v
-
-
-# Scenes of frames (0, 0), (0, 1), (111, 5) of each family at the reference camera, as drawn before
-# rig-photo was added (commit cbad8cf): sha256 of their JSON, first 16 hex digits.
-BEFORE = {
-    "clean": "8eb13cd78e93d769",
-    "shifts": "1a6fdfd7720b2b61",
-    "rig": "9a6e8804df1eff76",
-    "rig-unseen": "b65aa2b2cf9e3c60",
-    "edge": "e8db0219409bfea5",
-    "refuse": "69007a6d43c322e0",
-    "two-edge": "6e7d45688c06e70a",  # as drawn since its second sphere keeps off top and bottom
-}
-
-
-def test_earlier_families_keep_their_streams():
-    assert families.FAMILIES == ("clean", "shifts", "rig", "rig-unseen", "edge", "refuse")
-    assert families.EXTRA_FAMILIES[:2] == ("two-edge", "rig-photo")
-    assert [families._FAMILY_ID[f] for f in families.FAMILIES + families.EXTRA_FAMILIES[:2]] == list(range(1, 9))
-    cam = camera.Camera()
-    for fam, digest in BEFORE.items():
-        h = hashlib.sha256()
-        for seed, i in ((0, 0), (0, 1), (111, 5)):
-            h.update(json.dumps(_rounded(families.draw_scene(fam, seed, i, cam)), sort_keys=True).encode())
-        assert h.hexdigest()[:16] == digest, fam
 
 
 def test_every_listed_photo_loads_offline():
