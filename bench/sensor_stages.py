@@ -8,14 +8,15 @@ several times: `all` (the family's frame, byte for byte), `no-ca`, `no-cfa`
 (no mosaic and no demosaicing), `no-wb`, `no-sharpen`, and `none` (all four
 left out). Each variant gets its own folder under --out with the frames and
 the family's truth.jsonl, ready for bench/localise.py --set NAME=DIR/truth.jsonl@OUT/camera.json.
-The family's draws do not change: only this script leaves stages out.
+The family's draws do not change: only this script leaves stages out. The
+folders follow bench/raycast's rules (frames.py): a folder with PNG files and
+no params.json, or an OUT/camera.json of another camera, is left alone; a
+complete folder made with the same parameters is reused.
 """
 import argparse
 import json
 import os
 import sys
-
-import cv2
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
@@ -45,28 +46,57 @@ def main(argv=None):
         cam = camera.load_camera(args.camera)
     except camera.CameraFileError as e:
         sys.exit(f"sensor_stages: {e}")
-    tex = render.load_texture(args.texture)
-    os.makedirs(args.out, exist_ok=True)
-    with open(os.path.join(args.out, "camera.json"), "w", encoding="utf-8") as f:
-        json.dump(cam.to_dict(), f, indent=1)
-    for v in VARIANTS:
-        os.makedirs(os.path.join(args.out, v), exist_ok=True)
-    truths = []
-    for i in range(args.n):
-        scene = families.draw_scene("rig-sensor", args.seed, i, cam)
-        lit = render.optics(render.radiance(scene, cam, tex, args.supersample), scene, cam)
-        name = frames.frame_name(scene["pose"])
-        for v, off in VARIANTS.items():
-            img = sensor.pipeline(lit, scene, cam, off=off)
-            cv2.imwrite(os.path.join(args.out, v, name), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-        scene["hidden_rim"] = render.hidden_rim_fraction(scene, cam) if scene.get("mount") else 0.0
-        circle = [round(c, 4) for c in render.circle(scene, cam)]
-        truths.append({"file": name, "pose": scene["pose"], "circle": circle, "scene": scene})
-    lines = "".join(json.dumps(t) + "\n" for t in truths)
-    for v in VARIANTS:
-        with open(os.path.join(args.out, v, "truth.jsonl"), "w", encoding="utf-8") as f:
-            f.write(lines)
+    try:
+        write_stages(args.out, args.seed, args.n, cam, args.texture, args.supersample)
+    except frames.FolderError as e:
+        sys.exit(f"sensor_stages: {e}")
     print(f"{args.out}: {args.n} frames x {len(VARIANTS)} variants ({', '.join(VARIANTS)})")
+
+
+def _claim_camera(out, cam):
+    """OUT/camera.json, the variants' camera: written when absent, kept when the same; another
+    camera's file there (a measurement folder's, say) is not this tool's to replace."""
+    path = os.path.join(out, "camera.json")
+    text = json.dumps(cam.to_dict(), indent=1)
+    if os.path.exists(path):
+        try:
+            same = camera.load_camera(path) == cam
+        except camera.CameraFileError:
+            same = False
+        if not same:
+            raise frames.FolderError(f"{path}: another camera's file; not replacing it: choose an empty "
+                                     f"or new folder, or pass that camera with --camera")
+        return
+    frames.write_atomic(path, text.encode())
+
+
+def write_stages(out, seed, n, cam, texture_path, supersample):
+    """Frames 0..n-1 of rig-sensor for `seed` into OUT/<variant>/ (frames.py's folder rules: each
+    variant folder made the tool's own first, truth.jsonl and params.json last, a complete one
+    with the same parameters reused) and OUT/camera.json."""
+    os.makedirs(out, exist_ok=True)
+    _claim_camera(out, cam)
+    base = {"family": "rig-sensor", "n": n, "seed": seed, "camera": cam.to_dict(),
+            "texture": frames.texture_record(texture_path), "supersample": supersample, "version": 1}
+    params = {v: dict(base, stages_off=list(off)) for v, off in VARIANTS.items()}
+    todo = [v for v in VARIANTS if not frames.reuse_or_clear(os.path.join(out, v), params[v])]
+    if not todo:
+        return
+    tex = render.load_texture(texture_path)
+    truths = []
+    for i in range(n):
+        scene = families.draw_scene("rig-sensor", seed, i, cam)
+        lit = render.optics(render.radiance(scene, cam, tex, supersample), scene, cam)
+        truth = frames.truth_line(scene, cam)
+        for v in todo:
+            png = frames.encode_png(sensor.pipeline(lit, scene, cam, off=VARIANTS[v]))
+            frames.write_atomic(os.path.join(out, v, truth["file"]), png)
+        truths.append(truth)
+    names = [t["file"] for t in truths]
+    if len(set(names)) != len(names):
+        raise frames.FolderError(f"{out}: two frames drew the same pose; use another seed")
+    for v in todo:
+        frames.finish_folder(os.path.join(out, v), params[v], truths)
 
 
 if __name__ == "__main__":

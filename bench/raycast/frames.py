@@ -32,7 +32,7 @@ def frame_name(pose):
     return "_".join(angle_text(v) for v in pose) + ".png"
 
 
-def _write_atomic(path, data):
+def write_atomic(path, data):
     tmp = f"{path}.tmp{os.getpid()}"
     with open(tmp, "wb") as f:
         f.write(data)
@@ -85,7 +85,7 @@ def reuse_or_clear(outdir, params):
                            f"of this tool; not replacing them: choose an empty or new folder")
     if os.path.exists(tpath):
         os.remove(tpath)
-    _write_atomic(ppath, (json.dumps(dict(params, complete=False), indent=1) + "\n").encode())
+    write_atomic(ppath, (json.dumps(dict(params, complete=False), indent=1) + "\n").encode())
     for name in pngs:
         os.remove(os.path.join(outdir, name))
     return False
@@ -94,24 +94,34 @@ def reuse_or_clear(outdir, params):
 def finish_folder(outdir, params, truths):
     """truth.jsonl, then params.json: from then on the folder is complete and reused."""
     lines = "".join(json.dumps(t) + "\n" for t in truths)
-    _write_atomic(os.path.join(outdir, "truth.jsonl"), lines.encode())
-    _write_atomic(os.path.join(outdir, "params.json"), (json.dumps(params, indent=1) + "\n").encode())
+    write_atomic(os.path.join(outdir, "truth.jsonl"), lines.encode())
+    write_atomic(os.path.join(outdir, "params.json"), (json.dumps(params, indent=1) + "\n").encode())
+
+
+def encode_png(img):
+    """PNG bytes of an RGB uint8 frame."""
+    ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return png.tobytes()
+
+
+def truth_line(scene, cam):
+    """The truth.jsonl record of a frame drawn from `scene` (adds "hidden_rim" to the scene)."""
+    scene["hidden_rim"] = render.hidden_rim_fraction(scene, cam) if scene.get("mount") else 0.0
+    circle = [round(c, 4) for c in render.circle(scene, cam)] if scene.get("sphere", True) else None
+    truth = {"file": frame_name(scene["pose"]), "pose": scene["pose"], "circle": circle, "scene": scene}
+    if scene.get("expect"):
+        truth["expect"] = scene["expect"]
+    return truth
 
 
 def make_frame(family, seed, index, cam, tex, supersample=4):
     """(file name, PNG bytes, truth dict) of one frame."""
     scene = families.draw_scene(family, seed, index, cam)
-    img = render.render(scene, cam, tex, supersample)
-    ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    name = frame_name(scene["pose"])
-    scene["hidden_rim"] = render.hidden_rim_fraction(scene, cam) if scene.get("mount") else 0.0
-    circle = [round(c, 4) for c in render.circle(scene, cam)] if scene.get("sphere", True) else None
-    truth = {"file": name, "pose": scene["pose"], "circle": circle, "scene": scene}
-    if scene.get("expect"):
-        truth["expect"] = scene["expect"]
-    return name, png.tobytes(), truth
+    png = encode_png(render.render(scene, cam, tex, supersample))
+    truth = truth_line(scene, cam)
+    return truth["file"], png, truth
 
 
 _WORKER = {}
@@ -125,7 +135,7 @@ def _init(cam, texture_path):
 def _job(args):
     family, seed, index, outdir, supersample = args
     name, png, truth = make_frame(family, seed, index, _WORKER["cam"], _WORKER["tex"], supersample)
-    _write_atomic(os.path.join(outdir, name), png)
+    write_atomic(os.path.join(outdir, name), png)
     return index, truth
 
 
