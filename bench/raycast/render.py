@@ -257,12 +257,7 @@ def camera_effects(img, scene, cam):
         sigma = np.sqrt((noise["read"] / 255.0) ** 2 + noise["shot"] / 255.0 * lin)
         img = lin + sigma * rng.standard_normal(img.shape).astype(np.float32)
     img = np.clip(img, 0.0, 1.0) ** np.float32(1.0 / scene["gamma"])
-    out = np.clip(np.floor(img * 255.0 + 0.5), 0, 255).astype(np.uint8)
-    q = scene.get("jpeg", 0)
-    if q:
-        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(out, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, int(q)])
-        out = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-    return out
+    return sensor.output_8bit(img, scene.get("jpeg", 0))
 
 
 def render(scene, cam, tex, supersample=4):

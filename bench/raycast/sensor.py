@@ -122,8 +122,13 @@ def pipeline(img, scene, cam, off=()):
     img = (rgb.astype(np.float32) / 255.0) ** np.float32(1.0 / scene["gamma"])
     if sen.get("sharpen") and "sharpen" not in off:
         img = unsharp(img, sen["sharpen"]["amount"], sen["sharpen"]["radius_px"])
+    return output_8bit(img, scene.get("jpeg", 0))
+
+
+def output_8bit(img, q):
+    """Every camera's last stage (render.camera_effects' too): float RGB in 0..1 to 8 bits
+    (rounded), then a JPEG round trip at quality q (0: none)."""
     out = np.clip(np.floor(img * 255.0 + 0.5), 0, 255).astype(np.uint8)
-    q = scene.get("jpeg", 0)
     if q:
         ok, buf = cv2.imencode(".jpg", cv2.cvtColor(out, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, int(q)])
         out = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
