@@ -1227,8 +1227,10 @@ def _find_sphere_v2(frame, p, camera=None):
     a = found[order[0]]
     cut = rim_outside(a[0], a[1], a[2], h, w)
     if cut > p["max_cut"]:
-        # a circle darker inside than at its edge (a disk of the clutter) is no cut sphere
-        raise NoSphere(_cut_message(cut, p) if _lit(frame, dirs, a, p) else "no sphere found in frame")
+        # a circle darker inside than at its edge (a disk of the clutter) is no cut sphere: the
+        # frame is then told as one without a sphere is (a lit cut sphere below it, or none)
+        raise NoSphere(_cut_message(cut, p) if _lit(frame, dirs, a, p)
+                       else _no_sphere_message(frame, dirs, fits, p, rmin, rmax))
     for b in found:
         if b is not a and _second(frame, dirs, a, b, p):
             raise NoSphere(_two_spheres(a, b))

@@ -2212,11 +2212,12 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     const Found &a = all[fits[(size_t)ia]];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
-        // a circle darker inside than at its edge (a disk of the clutter) is no cut sphere
+        // a circle darker inside than at its edge (a disk of the clutter) is no cut sphere:
+        // the frame is then told as one without a sphere is (a lit cut sphere below it, or none)
         if (lit(f, dirs, a, p))
             cut_message(cut, p, err, errlen);
         else
-            pi_seterrn(err, errlen, "no sphere found in frame");
+            no_sphere(f, dirs, all, p, rmin, rmax, err, errlen);
         return -1;
     }
     // another well supported circle of about its size, neither centre inside
