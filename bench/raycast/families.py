@@ -124,17 +124,27 @@ def _round_post(rng):
             "specular": float(rng.uniform(0.05, 0.5)), "power": float(rng.uniform(10, 60))}
 
 
+def _place_mount(s, rng, cam, draw):
+    """s["mount"] drawn by draw(rng) until _mount_ok accepts it (the 20th draw at most)."""
+    for _ in range(20):
+        s["mount"] = draw(rng)
+        if _mount_ok(s, cam):
+            break
+
+
+def _rig_camera(s, rng):
+    """The rig's camera: vignetting up to 40 %, JPEG 60-95 on 80 % of frames."""
+    s["vignetting"] = float(rng.uniform(0, 0.4))
+    s["jpeg"] = int(rng.integers(60, 96)) if rng.random() < 0.8 else 0
+    return s
+
+
 def _rig(rng, cam):
     s = _shifts(rng, cam)
     kind = str(rng.choice(["uniform", "gradient", "clutter"]))
     s["background"] = backgrounds.draw(kind, rng, cam.width, cam.height)
-    for _ in range(20):
-        s["mount"] = _round_post(rng)
-        if _mount_ok(s, cam):
-            break
-    s["vignetting"] = float(rng.uniform(0, 0.4))
-    s["jpeg"] = int(rng.integers(60, 96)) if rng.random() < 0.8 else 0
-    return s
+    _place_mount(s, rng, cam, _round_post)
+    return _rig_camera(s, rng)
 
 
 def _unseen_mount(rng):
@@ -164,10 +174,7 @@ def _rig_unseen(rng, cam):
                            "angle_deg": float(rng.uniform(0, 360))}
     else:
         s["background"] = backgrounds.draw(kind, rng, cam.width, cam.height)
-    for _ in range(20):
-        s["mount"] = _unseen_mount(rng)
-        if _mount_ok(s, cam):
-            break
+    _place_mount(s, rng, cam, _unseen_mount)
     s["vignetting"] = float(rng.uniform(0, 0.5))
     s["blur"] = {"kind": "disc", "px": float(rng.uniform(0, 1.5))}
     s["jpeg"] = int(rng.integers(50, 96)) if rng.random() < 0.8 else 0
@@ -273,14 +280,8 @@ def _rig_photo(rng, cam):
     half the frames the rig's round post, half a mount of rig-unseen's kinds."""
     s = _shifts(rng, cam)
     s["background"] = backgrounds.draw("photo", rng, cam.width, cam.height)
-    unseen = bool(rng.random() < 0.5)
-    for _ in range(20):
-        s["mount"] = _unseen_mount(rng) if unseen else _round_post(rng)
-        if _mount_ok(s, cam):
-            break
-    s["vignetting"] = float(rng.uniform(0, 0.4))
-    s["jpeg"] = int(rng.integers(60, 96)) if rng.random() < 0.8 else 0
-    return s
+    _place_mount(s, rng, cam, _unseen_mount if rng.random() < 0.5 else _round_post)
+    return _rig_camera(s, rng)
 
 
 def _rig_sensor(rng, cam):
