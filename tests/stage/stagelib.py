@@ -132,6 +132,14 @@ class Stage:
     def state(self):
         return self.query("state")
 
+    def diagnosis(self):
+        """The simulator's own account for an error message: its cycle count and the port's opens
+        and auto-resets (a reset the test did not send shows there)."""
+        try:
+            return f"stagesim cycle {self.cycle()}, uart {self.query('uart')}"
+        except (OSError, ValueError) as e:
+            return f"stagesim state unavailable ({e})"
+
     def steps(self):
         return self.state()["steps"]
 
@@ -183,7 +191,8 @@ class Stage:
             if left <= 0:
                 if not self.alive():
                     raise StageError(f"stagesim exited: {self.stderr_text()}")
-                raise StageError(f"no line in {timeout}s; pending {self.rx!r}; last lines {self.log[-10:]}")
+                raise StageError(f"no line in {timeout}s; pending {self.rx!r}; last lines {self.log[-10:]}; "
+                                 f"{self.diagnosis()}")
             self.pump(min(left, 0.1))
         line, self.rx = self.rx.split(b"\n", 1)
         text = line.decode("latin-1").rstrip("\r")
