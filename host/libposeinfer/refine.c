@@ -62,46 +62,46 @@
 #define RF_BODY static inline __attribute__((always_inline))
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 #define RF_X86_GCC 1
-#define RF_VERSIONS(ret, name, params, args)                                                     \
+/* The AVX-512 build of a loop's body (fused multiply-adds allowed) and the
+ * baseline one (none fused), shared by RF_VERSIONS and RF_VERSIONS_HAND */
+#define RF_V2(ret, name, params, args)                                                           \
     __attribute__((target("avx512f"), optimize("fp-contract=fast"))) static ret name##_v2 params \
     {                                                                                            \
         return name##_body args;                                                                 \
-    }                                                                                            \
-    __attribute__((target("avx2"), optimize("fp-contract=off"))) static ret name##_v1 params     \
-    {                                                                                            \
-        return name##_body args;                                                                 \
-    }                                                                                            \
-    __attribute__((optimize("fp-contract=off"))) static ret name##_v0 params                     \
-    {                                                                                            \
-        return name##_body args;                                                                 \
-    }                                                                                            \
-    static ret name params                                                                       \
-    {                                                                                            \
-        int v_ = rf_version();                                                                   \
-        return v_ == RF_V_AVX512 ? name##_v2 args                                                \
-               : v_ == RF_V_AVX2 ? name##_v1 args                                                \
-                                 : name##_v0 args;                                               \
+    }
+#define RF_V0(ret, name, params, args)                                       \
+    __attribute__((optimize("fp-contract=off"))) static ret name##_v0 params \
+    {                                                                        \
+        return name##_body args;                                             \
+    }
+#define RF_VERSIONS(ret, name, params, args)                                                 \
+    RF_V2(ret, name, params, args)                                                           \
+    __attribute__((target("avx2"), optimize("fp-contract=off"))) static ret name##_v1 params \
+    {                                                                                        \
+        return name##_body args;                                                             \
+    }                                                                                        \
+    RF_V0(ret, name, params, args)                                                           \
+    static ret name params                                                                   \
+    {                                                                                        \
+        int v_ = rf_version();                                                               \
+        return v_ == RF_V_AVX512 ? name##_v2 args                                            \
+               : v_ == RF_V_AVX2 ? name##_v1 args                                            \
+                                 : name##_v0 args;                                           \
     }
 #if RF_VL == 16
 /* RF_VERSIONS for a loop whose AVX2 version (avx2) and baseline one (base,
  * or NAME_v0 where the baseline has none of its own) are written by hand:
  * NAME_v2 and NAME_v0 alone are built from the body */
-#define RF_VERSIONS_HAND(ret, name, params, args, avx2, base)                                    \
-    __attribute__((target("avx512f"), optimize("fp-contract=fast"))) static ret name##_v2 params \
-    {                                                                                            \
-        return name##_body args;                                                                 \
-    }                                                                                            \
-    __attribute__((optimize("fp-contract=off"))) static ret name##_v0 params                     \
-    {                                                                                            \
-        return name##_body args;                                                                 \
-    }                                                                                            \
-    static ret name params                                                                       \
-    {                                                                                            \
-        int v_ = rf_version();                                                                   \
-        return v_ == RF_V_AVX512     ? name##_v2 args                                            \
-               : v_ == RF_V_AVX2     ? avx2 args                                                 \
-               : v_ == RF_V_BASELINE ? base args                                                 \
-                                     : name##_v0 args;                                           \
+#define RF_VERSIONS_HAND(ret, name, params, args, avx2, base) \
+    RF_V2(ret, name, params, args)                            \
+    RF_V0(ret, name, params, args)                            \
+    static ret name params                                    \
+    {                                                         \
+        int v_ = rf_version();                                \
+        return v_ == RF_V_AVX512     ? name##_v2 args         \
+               : v_ == RF_V_AVX2     ? avx2 args              \
+               : v_ == RF_V_BASELINE ? base args              \
+                                     : name##_v0 args;        \
     }
 #endif
 #else
