@@ -60,6 +60,14 @@ def assert_within_limits(frames, p):
         assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
     return imgs
 
+def assert_off_centre(imgs, frames, p, px):
+    """Every frame's circle more than px off its true centre: what a regression test's frames
+    show with the step it guards switched off (imgs: assert_within_limits's)."""
+    for img, (path, truth) in zip(imgs, frames):
+        ec, _ = circle_error(pp.find_sphere(img, p, CAMERA), truth)
+        assert ec > px, (path.name, ec)
+
+
 def circle_error(found, truth):
     """(centre error in px, radius error in %)."""
     return math.hypot(found[0] - truth[0], found[1] - truth[1]), abs(found[2] / truth[2] - 1) * 100
