@@ -1739,26 +1739,23 @@ void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p
     }
 }
 
-// The sphere's last step (preprocess.py _outermost, then _rim), from its
-// support's rays (from its centre, +-support_flank_px; none cast again):
-// refitted through the outermost edges near it (where an arc of the rim has
-// no colour step, the rays there find a band inside it, and the fit through
-// the candidates nearest it leans towards them): on each ray the outermost
-// candidate from 1.5 inlier_px inside the current circle to 2 inlier_px
-// outside, taken at the fit's first round and again at round irls_iters / 2
-// about the circle reached then, one robust fit through these, its last round
-// at the floor scale (sigma_min_px) (the circle as it is when either pick has
-// fewer than 8 rays or the fit fails; the previous round's when the last round
-// would keep fewer than 8 rays); then that
-// circle's radius moved to the rim: on each ray the peak nearest where the
-// ray crosses it, its outer half-maximum less the edge half-width, the median
-// of their distances from the circle added to its radius.
-void final_circle(const std::vector<double> &dirs, const pp_params *p, const Found &a,
-                  const Rays &rays, double *ocx, double *ocy, double *orad)
+// The sphere refitted through the outermost edges near it (preprocess.py
+// _outermost), from its support's rays (from its centre, +-support_flank_px;
+// none cast again): where an arc of the rim has no colour step, the rays there
+// find a band inside it, and the fit through the candidates nearest it leans
+// towards them. On each ray the outermost candidate from 1.5 inlier_px inside
+// the current circle to `out` inlier_px outside, taken at the fit's first
+// round and again at round irls_iters / 2 about the circle reached then, one
+// robust fit through these, its last round at the floor scale (sigma_min_px)
+// (the circle as it is when either pick has fewer than 8 rays or the fit
+// fails; the previous round's when the last round would keep fewer than 8
+// rays).
+void outermost(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+               const Rays &rays, double out, double *ocx, double *ocy, double *orad)
 {
     const int K = (int)dirs.size() / 2;
-    thread_local std::vector<double> w, outer, xs, ys, res, ares, wts;
-    const double r = a.r, lo = -1.5 * p->inlier_px, hi = 2.0 * p->inlier_px;
+    thread_local std::vector<double> xs, ys, res, ares, wts;
+    const double r = a.r, lo = -1.5 * p->inlier_px, hi = out * p->inlier_px;
     const int32_t *poff = rays.off.data();
     const double *pp = rays.pos.data();
     // one robust fit (as fit_rays), about the rays' origin, through on each
@@ -1818,12 +1815,57 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
             break;
         }
     }
-    double nx = a.cx + x, ny = a.cy + y;
+    *ocx = a.cx + x;
+    *ocy = a.cy + y;
+    *orad = nr;
     if (!fitted || !(nr > 1.0)) {
-        nx = a.cx;
-        ny = a.cy;
-        nr = r;
+        *ocx = a.cx;
+        *ocy = a.cy;
+        *orad = r;
     }
+}
+
+// The sphere's circle, when supported below this after tangent, is refitted
+// through the outermost edges to wide_out inlier_px outside it and kept when
+// that circle is better supported (preprocess.py WIDE_BELOW, WIDE_OUT: the
+// same values, and their measured reason).
+constexpr double wide_below = 0.86;
+constexpr double wide_out = 3.0;
+
+// The sphere's fit, when supported below wide_below, refitted through the
+// outermost edges to wide_out inlier_px outside it (preprocess.py _wide): near
+// the limb a texture band's edge runs along the rim a few pixels inside it,
+// and the fit can settle on it along one arc. That circle replaces the fit
+// when better supported. *rays holds the support rays of *fit, and of the kept
+// circle after; *spare is scratch.
+void wide(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
+          Rays *rays, Rays *spare)
+{
+    if (!(fit->support < wide_below)) return;
+    double cx, cy, r;
+    outermost(dirs, p, *fit, *rays, wide_out, &cx, &cy, &r);
+    const double sup = support(f, dirs, cx, cy, r, p, spare);
+    if (sup > fit->support) {
+        std::swap(*rays, *spare);
+        *fit = {cx, cy, r, sup};
+    }
+}
+
+// The sphere's last step (preprocess.py _outermost, then _rim), from its
+// support's rays: refitted through the outermost edges near it (outermost, to
+// 2 inlier_px outside), then that circle's radius moved to the rim: on each ray
+// the peak nearest where the ray crosses it, its outer half-maximum less the
+// edge half-width, the median of their distances from the circle added to its
+// radius.
+void final_circle(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+                  const Rays &rays, double *ocx, double *ocy, double *orad)
+{
+    const int K = (int)dirs.size() / 2;
+    thread_local std::vector<double> w, outer;
+    const int32_t *poff = rays.off.data();
+    const double *pp = rays.pos.data();
+    double nx, ny, nr;
+    outermost(dirs, p, a, rays, 2.0, &nx, &ny, &nr);
     // the rim, on each ray near where it crosses the new circle (outer: NaN
     // for a ray without)
     const double dx = nx - a.cx, dy = ny - a.cy;
@@ -2259,6 +2301,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // a weakly supported sphere tried from larger circles tangent to it on its supported arc
     Found sp = a;
     tangent(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
+    // and refitted through the outermost edges of a wider band
+    wide(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
     // refitted through the outermost edges near it, its radius moved to the rim
     final_circle(dirs, p, sp, bank[fits[(size_t)ia]], ocx, ocy, orad);
     return 0;

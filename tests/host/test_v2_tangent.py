@@ -29,9 +29,12 @@ def frames(tmp_path_factory):
 def test_tangent_circles(frames, monkeypatch):
     p = params()
     imgs = assert_within_limits(frames, p)
-    # without the tangent tries: all more than a pixel off centre (what this guards)
+    # without the tangent tries: all more than a pixel off centre (what this guards), and still
+    # more than half a pixel with the wider band's refit after them (_wide)
     with monkeypatch.context() as m:
         m.setattr(pp, "_tangent", lambda img, dirs, fit, p: fit)
+        assert_off_centre(imgs, frames, p, 0.5)
+        m.setattr(pp, "_wide", lambda img, dirs, fit, rays, peaks, p: fit)
         assert_off_centre(imgs, frames, p, 1.0)
     # with them, but only the passes' circles: the dark-limbed frame more than a pixel off
     passes_only = pp._tangent_tries
