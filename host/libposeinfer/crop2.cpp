@@ -2237,6 +2237,15 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         // circles too, in every try
         grown(f, dirs, p, &all[ib], bank, ib, all.size(), all[ib].support < p->min_support,
               decisive);
+        // the strongest peak's fit too, when weak, another one is better supported (a sphere)
+        // and its centre lies inside that one: a weaker peak's fit through part of the rim and
+        // the texture inside can beat the sphere's own weak fit before its retries
+        // (preprocess.py: the same, and its measured reason)
+        const Found &f0 = all[0], &fb = all[ib];
+        const double dx = f0.cx - fb.cx, dy = f0.cy - fb.cy;
+        if (ib != 0 && f0.support < decisive && fb.support >= p->min_support &&
+            dx * dx + dy * dy < fb.r * fb.r)
+            grown(f, dirs, p, &all[0], bank, 0, all.size(), f0.support < p->min_support, decisive);
     }
     // the well supported fits of a radius in range: their indexes into all
     std::vector<size_t> fits;
