@@ -175,12 +175,14 @@ SECOND_RETRY = 0.25
 # runs along the rim, 2-4 px inside it, often with a larger colour step than the rim's over a
 # dark backdrop; the fit can settle on such a band along one arc (a circle 1-2 px small, off
 # towards the other side) and stay there: the rim lies beyond the last refit's band, and
-# _tangent's retries start 3 and 6 px out. On the 5 500 development frames (the ray-caster's
-# seeds 0, 111-140 and 401-409, two-edge 500-502, rig-photo 501-503, rig-sensor 601-603, and the
-# training renderer's val sets) 12 circles enter the limits of 0.5 px and 0.5 % and none leaves
-# (rig s404 6.666_-1.074_18.715: support 0.75 -> 0.85, 1.73 -> 0.05 px off centre); without the
-# gate (every sphere) the same; with the band to 4 inlier_px, 2 fewer. Constants of the
-# algorithm, not model parameters; crop2.cpp has the same (wide_out, wide_below).
+# _tangent's retries start fine_window_px and 2 fine_window_px out (3 and 6 px as shipped). On
+# the 5 500 development frames (the ray-caster's seeds 0, 111-140 and 401-409, two-edge 500-502,
+# rig-photo 501-503, rig-sensor 601-603, and the training renderer's val sets) 12 circles enter
+# the limits of 0.5 px and 0.5 % and none leaves (rig s404 6.666_-1.074_18.715: support after
+# _tangent 0.75 -> 0.85, 1.73 -> 0.05 px off centre); without the gate (every sphere) the same;
+# with the band to 4 inlier_px, 2 fewer. On 1 200 fresh held-out frames (seeds 410-413) none
+# enters and one leaves (0.37 -> 0.60 px). Constants of the algorithm, not model parameters;
+# crop2.cpp has the same (wide_out, wide_below).
 WIDE_OUT = 3.0
 WIDE_BELOW = 0.86
 
@@ -851,6 +853,22 @@ def _grown(img, dirs, fit, p, inward, until):
     return fit
 
 
+def _grow_first(img, dirs, fits, ib, p):
+    """The first fit (of the strongest coarse peak that gave one) tried again as the best
+    supported one is (_grown), in place in fits, when it is not that one (index ib, after its
+    tries), its support is below (1 + min_support) / 2, the best one has at least min_support
+    and holds its centre. A weaker peak's fit through part of the rim and the texture inside can
+    be better supported than the sphere's own weak fit before its tries (rig s403
+    26.641_-7.408_20.003, a dark limb on a dark gradient: 0.484 against 0.469, 8.6 px off; the
+    first fit grown 0.664, 0.17 px). Not when the best has less than min_support (no sphere): in
+    frames without one, a circle grown there was named as a cut sphere."""
+    decisive = (1.0 + p["min_support"]) / 2.0
+    f0, fb = fits[0], fits[ib]
+    dx, dy = f0[0] - fb[0], f0[1] - fb[1]
+    if ib != 0 and f0[3] < decisive and fb[3] >= p["min_support"] and dx * dx + dy * dy < fb[2] * fb[2]:
+        fits[0] = _grown(img, dirs, f0, p, f0[3] < p["min_support"], decisive)
+
+
 def _outermost(rays, peaks, dirs, fit, p, out=2.0):
     """The sphere refitted through the outermost edges near it: on an arc where the limb and the
     backdrop have nearly the same colour, the rays find only a texture band or the limb's shading
@@ -1245,16 +1263,8 @@ def _find_sphere_v2(frame, p, camera=None):
         # limb as the rim (tried on every weak fit, a `shifts` frame's fit 0.18 px off the rim moved
         # 1.2 px off)
         fits[ib] = _grown(frame, dirs, fits[ib], p, fits[ib][3] < p["min_support"], decisive)
-        # the strongest peak's fit too, when weak, another one is better supported (a sphere)
-        # and its centre lies inside that one: a weaker peak's fit through part of the rim and
-        # the texture inside can beat the sphere's own weak fit before its retries (rig s403
-        # 26.641_-7.408_20.003, a dark limb on a dark gradient: 0.484 against 0.469, 8.6 px off;
-        # the strongest peak's fit grown 0.664, 0.17 px). A sphere's fit only: in a frame without
-        # one, a circle grown there could be named as a cut sphere.
-        f0, fb = fits[0], fits[ib]
-        dx, dy = f0[0] - fb[0], f0[1] - fb[1]
-        if ib != 0 and f0[3] < decisive and fb[3] >= p["min_support"] and dx * dx + dy * dy < fb[2] * fb[2]:
-            fits[0] = _grown(frame, dirs, f0, p, f0[3] < p["min_support"], decisive)
+        # and the first fit too (_grow_first)
+        _grow_first(frame, dirs, fits, ib, p)
     found = [f for f in fits if f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1]
     if not found:
         raise NoSphere(_no_sphere_message(frame, dirs, fits, p, rmin, rmax))
@@ -1294,9 +1304,9 @@ def _find_sphere_v2(frame, p, camera=None):
     rays = _ray_scores(frame, dirs, a[0], a[1], a[2], p["support_flank_px"])
     peaks = _peaks(rays[0], rays[1], p["ray_edge_min"])  # the edge candidates of both steps
     # a weakly supported sphere refitted through the outermost edges of a wider band (WIDE_OUT)
-    w = _wide(frame, dirs, a, rays, peaks, p)
-    if w is not a:
-        a = w
+    wider = _wide(frame, dirs, a, rays, peaks, p)
+    if wider is not a:
+        a = wider
         rays = _ray_scores(frame, dirs, a[0], a[1], a[2], p["support_flank_px"])
         peaks = _peaks(rays[0], rays[1], p["ray_edge_min"])
     return _rim(rays, peaks, dirs, a, _outermost(rays, peaks, dirs, a, p), p)

@@ -1825,7 +1825,7 @@ void outermost(const std::vector<double> &dirs, const pp_params *p, const Found 
     }
 }
 
-// The sphere's circle, when supported below this after tangent, is refitted
+// The sphere's circle, when supported below wide_below after tangent, is refitted
 // through the outermost edges to wide_out inlier_px outside it and kept when
 // that circle is better supported (preprocess.py WIDE_BELOW, WIDE_OUT: the
 // same values, and their measured reason).
@@ -2237,10 +2237,10 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         // circles too, in every try
         grown(f, dirs, p, &all[ib], bank, ib, all.size(), all[ib].support < p->min_support,
               decisive);
-        // the strongest peak's fit too, when weak, another one is better supported (a sphere)
-        // and its centre lies inside that one: a weaker peak's fit through part of the rim and
-        // the texture inside can beat the sphere's own weak fit before its retries
-        // (preprocess.py: the same, and its measured reason)
+        // and the first fit (of the strongest coarse peak that gave one) too, when weak, not
+        // the best, the best has at least min_support and holds its centre: a weaker peak's fit
+        // through part of the rim and the texture inside can beat the sphere's own weak fit
+        // before its tries (preprocess.py _grow_first: the same, and its measured reason)
         const Found &f0 = all[0], &fb = all[ib];
         const double dx = f0.cx - fb.cx, dy = f0.cy - fb.cy;
         if (ib != 0 && f0.support < decisive && fb.support >= p->min_support &&

@@ -38,5 +38,17 @@ def test_wide_keeps_a_well_supported_fit():
     assert pp._wide(None, pp._ray_dirs(p["rays"]), fit, None, None, p) is fit
 
 
+def test_wide_keeps_the_fit_unless_better(monkeypatch):
+    """The wider band's circle replaces the fit only when better supported: on equal support the
+    fit itself is returned."""
+    p = params()
+    fit = (10.0, 10.0, 5.0, 0.5)
+    monkeypatch.setattr(pp, "_outermost", lambda rays, peaks, dirs, f, p, out=2.0: (11.0, 10.0, 5.5))
+    monkeypatch.setattr(pp, "_support", lambda img, dirs, cx, cy, r, p: 0.5)
+    assert pp._wide(None, pp._ray_dirs(p["rays"]), fit, None, None, p) is fit
+    monkeypatch.setattr(pp, "_support", lambda img, dirs, cx, cy, r, p: 0.6)
+    assert pp._wide(None, pp._ray_dirs(p["rays"]), fit, None, None, p) == (11.0, 10.0, 5.5, 0.6)
+
+
 def test_same_circles_in_c(frames, tmp_path, poseinfer, timeout_scale):
     assert_same_circles_in_c(poseinfer, [path for path, _ in frames], tmp_path, timeout_scale)

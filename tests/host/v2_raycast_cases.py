@@ -1,9 +1,9 @@
 """Shared by the sphere-crop-v2 regression tests on frames of the independent ray-caster
 (test_v2_weak_fit.py, test_v2_rim.py, test_v2_unanswered.py, test_v2_limb.py, test_v2_tangent.py,
-test_v2_wide.py): the shipped model's localisation parameters, the reference camera file, the
-frames made again from (family, seed, index) (seed 0's as build/realscene-final holds them), the
-error measure of docs/bench/localise.md, and the check that the C runtime finds the circle Python
-finds."""
+test_v2_wide.py, test_v2_first_peak.py): the shipped model's localisation parameters, the
+reference camera file, the frames made again from (family, seed, index) (seed 0's as
+build/realscene-final holds them), the error measure of docs/bench/localise.md, and the check that
+the C runtime finds the circle Python finds."""
 import json
 import math
 import subprocess
