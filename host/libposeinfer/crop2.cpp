@@ -1951,13 +1951,17 @@ bool limb_shading(const Frame &f, const std::vector<double> &dirs, double cx, do
     return true;
 }
 
+// A second circle's shading above 1 below limb_share of the sphere's, when the
+// sphere's is at least limb_min, is flat (preprocess.py LIMB_SHARE, LIMB_MIN:
+// the same values, and their measured reason).
+constexpr double limb_share = 0.25;
+constexpr double limb_min = 1.25;
+
 // Whether circle b's inside is flat where sphere a's darkens towards its rim
-// (preprocess.py _flat, LIMB_SHARE and LIMB_MIN: the same constants): then b
-// is no second sphere.
+// (preprocess.py _flat): then b is no second sphere.
 bool flat(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
           const pp_params *p)
 {
-    const double limb_share = 0.25, limb_min = 1.25;
     double sa, sb;
     if (!limb_shading(f, dirs, a.cx, a.cy, a.r, p, &sa) || !(sa >= limb_min)) return false;
     return limb_shading(f, dirs, b.cx, b.cy, b.r, p, &sb) && sb - 1.0 < limb_share * (sa - 1.0);
