@@ -2250,6 +2250,18 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         if (ib != 0 && f0.support < decisive && fb.support >= p->min_support &&
             dx * dx + dy * dy < fb.r * fb.r)
             grown(f, dirs, p, &all[0], bank, 0, all.size(), f0.support < p->min_support, decisive);
+        // a best fit still below min_support (the frame would be refused) tried from tangent
+        // circles too, kept only as a lit sphere (preprocess.py _rescue: the same, and its
+        // measured reason); its rays in bank[ib] are not needed when it is not kept (the frame
+        // is refused: no fit has min_support)
+        if (second_retry <= all[ib].support && all[ib].support < p->min_support) {
+            Found t = all[ib];
+            tangent(f, dirs, p, &t, &bank[ib], &bank[all.size()]);
+            double sh;
+            if (t.support >= p->min_support && limb_shading(f, dirs, t.cx, t.cy, t.r, p, &sh) &&
+                sh >= limb_min)
+                all[ib] = t;
+        }
     }
     // the well supported fits of a radius in range: their indexes into all
     std::vector<size_t> fits;

@@ -28,7 +28,7 @@ def params():
 
 def render_frames(folder, cases, seed=0):
     """cases: (family, index[, expected file name]) of `seed` (0: build/realscene-final's).
-    Returns [(path, true circle in OpenCV coordinates)]."""
+    Returns [(path, true circle in OpenCV coordinates, None without a sphere)]."""
     sys.path.insert(0, str(REPO / "bench"))
     from raycast import camera, frames as rc_frames, render
     tex_path = Path(folder) / "Texture_3_color.png"
@@ -41,8 +41,8 @@ def render_frames(folder, cases, seed=0):
         assert not want or name == want[0], (family, index, name)
         path = Path(folder) / f"{family}_{name}"
         path.write_bytes(png)
-        cx, cy, r = truth["circle"]
-        out.append((path, (cx - 0.5, cy - 0.5, r)))
+        c = truth["circle"]  # None for a frame without the sphere (`refuse`, kind none)
+        out.append((path, None if c is None else (c[0] - 0.5, c[1] - 0.5, c[2])))
     return out
 
 
