@@ -20,9 +20,8 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from raycast import camera, families, frames, render, sensor  # noqa: E402
+from raycast import camera, cli, families, frames, render, sensor  # noqa: E402
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 VARIANTS = {"all": (), "no-ca": ("ca",), "no-cfa": ("cfa",), "no-wb": ("wb",), "no-sharpen": ("sharpen",),
             "none": sensor.STAGES}
 
@@ -33,19 +32,11 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, required=True, help="seed of the rig-sensor frames")
     ap.add_argument("--n", type=int, default=100, help="frames")
     ap.add_argument("--out", required=True, help="output folder (one sub-folder per variant)")
-    ap.add_argument("--texture", default=os.path.join(ROOT, "build", "textures", "Texture_3_color.png"),
-                    help="equirectangular texture")
-    ap.add_argument("--camera", default=None, help="camera file (default: the reference camera)")
-    ap.add_argument("--supersample", type=int, default=4, help="rays per pixel per side on the sphere and edges")
+    cli.add_scene_arguments(ap)
     args = ap.parse_args(argv)
     if args.n < 1 or args.supersample < 1:
         sys.exit("sensor_stages: --n and --supersample must be at least 1")
-    if not os.path.isfile(args.texture):
-        sys.exit(f"sensor_stages: {args.texture}: no such texture (make textures)")
-    try:
-        cam = camera.load_camera(args.camera)
-    except camera.CameraFileError as e:
-        sys.exit(f"sensor_stages: {e}")
+    cam = cli.load_camera(args, "sensor_stages")
     try:
         write_stages(args.out, args.seed, args.n, cam, args.texture, args.supersample)
     except frames.FolderError as e:

@@ -6,9 +6,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from raycast import camera, families, frames  # noqa: E402
-
-ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+from raycast import cli, families, frames  # noqa: E402
 
 
 def get_args_parser():
@@ -22,10 +20,7 @@ def get_args_parser():
     ap.add_argument("--n", type=int, default=100, help="frames")
     ap.add_argument("--seed", type=int, default=0, help="seed (each family draws its own frames from it)")
     ap.add_argument("--out", required=True, help="output folder")
-    ap.add_argument("--texture", default=os.path.join(ROOT, "build", "textures", "Texture_3_color.png"),
-                    help="equirectangular texture (textures generate)")
-    ap.add_argument("--camera", default=None, help="camera file (default: the reference camera)")
-    ap.add_argument("--supersample", type=int, default=4, help="rays per pixel per side on the sphere and edges")
+    cli.add_scene_arguments(ap)
     ap.add_argument("--jobs", type=int, default=1, help="frames rendered at once")
     return ap
 
@@ -34,12 +29,7 @@ def main(argv=None):
     args = get_args_parser().parse_args(argv)
     if args.n < 1 or args.supersample < 1 or args.jobs < 1:
         sys.exit("raycast: --n, --supersample and --jobs must be at least 1")
-    if not os.path.isfile(args.texture):
-        sys.exit(f"raycast: {args.texture}: no such texture (make textures writes build/textures/)")
-    try:
-        cam = camera.load_camera(args.camera)
-    except camera.CameraFileError as e:
-        sys.exit(f"raycast: {e}")
+    cam = cli.load_camera(args, "raycast")
     t0 = time.time()
     try:
         path = frames.write_family(args.out, args.family, args.n, args.seed, cam, args.texture,
