@@ -1198,6 +1198,12 @@ def _cut_message(cut, p):
             f"at most {100 * p['max_cut']:.0f} %)")
 
 
+def _sized(r, rmin, rmax):
+    """Whether radius r may be the sphere's: within [0.9 rmin, 1.1 rmax] (radius_range's range,
+    10 % wider each way)."""
+    return rmin * 0.9 <= r <= rmax * 1.1
+
+
 def _no_sphere_message(img, dirs, fits, p, rmin, rmax):
     """The error when no circle is the sphere: the cut sphere's, of the best supported fit (first
     on ties) of a radius in range with more than max_cut of its rim outside the frame, at least
@@ -1206,7 +1212,7 @@ def _no_sphere_message(img, dirs, fits, p, rmin, rmax):
     h, w = img.shape[:2]
     for i in sorted(range(len(fits)), key=lambda i: (-fits[i][3], i)):
         c = fits[i]
-        if not rmin * 0.9 <= c[2] <= rmax * 1.1:
+        if not _sized(c[2], rmin, rmax):
             continue
         cut = rim_outside(c[0], c[1], c[2], h, w)
         if not cut > p["max_cut"]:
@@ -1291,7 +1297,7 @@ def _find_sphere_v2(frame, p, camera=None):
         # a best fit still below min_support (the frame would be refused) tried from tangent
         # circles too, kept only as a lit sphere (_rescue)
         fits[ib] = _rescue(frame, dirs, fits[ib], p)
-    found = [f for f in fits if f[3] >= p["min_support"] and rmin * 0.9 <= f[2] <= rmax * 1.1]
+    found = [f for f in fits if f[3] >= p["min_support"] and _sized(f[2], rmin, rmax)]
     if not found:
         raise NoSphere(_no_sphere_message(frame, dirs, fits, p, rmin, rmax))
     # the best supported circle is the sphere; another well supported one of about its size,
@@ -1310,7 +1316,7 @@ def _find_sphere_v2(frame, p, camera=None):
             raise NoSphere(_two_spheres(a, b))
     # a second sphere partly outside the frame: judged by its rays in the frame (SECOND_IN_FRAME)
     for b in fits:
-        if b[3] >= p["min_support"] or not rmin * 0.9 <= b[2] <= rmax * 1.1:
+        if b[3] >= p["min_support"] or not _sized(b[2], rmin, rmax):
             continue  # judged above, or not of a sphere's size
         s = _in_frame_support(dirs, b, p, h, w, SECOND_IN_FRAME)
         if s is not None and s >= p["min_support"] and _second(frame, dirs, a, b, p):
@@ -1318,11 +1324,11 @@ def _find_sphere_v2(frame, p, camera=None):
     # a second sphere whose fit settled on its texture: weak circles of the sphere's size beside
     # it tried again as the sphere's weak fit is (SECOND_RETRY)
     for b in fits:
-        if (b is a or not SECOND_RETRY <= b[3] < p["min_support"] or not rmin * 0.9 <= b[2] <= rmax * 1.1
+        if (b is a or not SECOND_RETRY <= b[3] < p["min_support"] or not _sized(b[2], rmin, rmax)
                 or not _apart(a, b, p)):
             continue
         g = _grown(frame, dirs, b, p, True, p["min_support"])
-        if g[3] >= p["min_support"] and rmin * 0.9 <= g[2] <= rmax * 1.1 and _second(frame, dirs, a, g, p):
+        if g[3] >= p["min_support"] and _sized(g[2], rmin, rmax) and _second(frame, dirs, a, g, p):
             raise NoSphere(_two_spheres(a, g))
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)

@@ -2066,6 +2066,12 @@ void two_spheres(const Found &a, const Found &b, char *err, size_t errlen)
                a.cx + 0.5, a.cy + 0.5, a.r, b.cx + 0.5, b.cy + 0.5, b.r);
 }
 
+// Whether radius r may be the sphere's: within [0.9 rmin, 1.1 rmax] (preprocess.py _sized).
+bool sized(double r, double rmin, double rmax)
+{
+    return rmin * 0.9 <= r && r <= rmax * 1.1;
+}
+
 // The error when no circle is the sphere (preprocess.py _no_sphere_message):
 // the cut sphere's, of the best supported fit (first on ties) of a radius in
 // range with more than max_cut of its rim outside the frame, at least half
@@ -2079,7 +2085,7 @@ void no_sphere(const Frame &f, const std::vector<double> &dirs, const std::vecto
     for (size_t i = 0; i < all.size(); i++) {
         const Found &c = all[i];
         if (best >= 0 && !(c.support > all[(size_t)best].support)) continue;
-        if (!(rmin * 0.9 <= c.r && c.r <= rmax * 1.1)) continue;
+        if (!sized(c.r, rmin, rmax)) continue;
         const double cut = rim_outside(c.cx, c.cy, c.r, f.h, f.w);
         if (!(cut > p->max_cut)) continue;
         double s, sh;
@@ -2266,8 +2272,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // the well supported fits of a radius in range: their indexes into all
     std::vector<size_t> fits;
     for (size_t i = 0; i < all.size(); i++)
-        if (all[i].support >= p->min_support && rmin * 0.9 <= all[i].r && all[i].r <= rmax * 1.1)
-            fits.push_back(i);
+        if (all[i].support >= p->min_support && sized(all[i].r, rmin, rmax)) fits.push_back(i);
     // the best supported circle (first on ties) is the sphere
     long ia = -1;
     for (size_t i = 0; i < fits.size(); i++)
@@ -2299,7 +2304,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // frame (second_in_frame)
     for (const Found &b : all) {
         // judged above, or not of a sphere's size
-        if (b.support >= p->min_support || !(rmin * 0.9 <= b.r && b.r <= rmax * 1.1)) continue;
+        if (b.support >= p->min_support || !sized(b.r, rmin, rmax)) continue;
         double s_in;
         if (in_frame_support(f, dirs, b, p, second_in_frame, &s_in) && s_in >= p->min_support &&
             second(f, dirs, a, b, p)) {
@@ -2313,12 +2318,11 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     for (size_t i = 0; i < all.size(); i++) {
         const Found &b = all[i];
         if (i == fits[(size_t)ia] || !(second_retry <= b.support && b.support < p->min_support) ||
-            !(rmin * 0.9 <= b.r && b.r <= rmax * 1.1) || !apart(a, b, p))
+            !sized(b.r, rmin, rmax) || !apart(a, b, p))
             continue;
         Found g = b;
         grown(f, dirs, p, &g, bank, i, all.size(), true, p->min_support);
-        if (g.support >= p->min_support && rmin * 0.9 <= g.r && g.r <= rmax * 1.1 &&
-            second(f, dirs, a, g, p)) {
+        if (g.support >= p->min_support && sized(g.r, rmin, rmax) && second(f, dirs, a, g, p)) {
             two_spheres(a, g, err, errlen);
             return -1;
         }
