@@ -496,9 +496,14 @@ def test_client_limit_answers_with_an_error(daemon, models, tmp_path):
     deadline = time.time() + 10 * d.scale
     while True:  # the slot comes free once the daemon has seen b go
         f = RawClient(d)
-        f.write(b"ping\n")
-        line = json.loads(f.readline())
-        if line == {"pong": True}:
+        try:
+            f.write(b"ping\n")
+            line = f.readline()
+        except (BrokenPipeError, ConnectionResetError) as e:
+            # still full: the daemon wrote "busy" and closed before the ping went out
+            line = repr(e).encode()
+        f.close()
+        if line and line.startswith(b"{") and json.loads(line) == {"pong": True}:
             break
         assert time.time() < deadline, line
         time.sleep(0.05)
