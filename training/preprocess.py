@@ -840,6 +840,13 @@ def _grow(img, dirs, fit, p, inward=False):
     return best
 
 
+def _decisive_support(p):
+    """A support that settles a fit, halfway from min_support to every ray: a weaker fit is tried
+    again (_grown, _grow_first, _tangent), and a coarse peak whose centre lies inside a fit this
+    well supported is not refined."""
+    return (1.0 + p["min_support"]) / 2.0
+
+
 def _grown(img, dirs, fit, p, inward, until):
     """fit tried from _grow's circles again and again: from the circle it moved to, while that is
     better supported and still below `until`, at most GROW_ROUNDS tries. Returns the last fit."""
@@ -862,7 +869,7 @@ def _grow_first(img, dirs, fits, ib, p):
     26.641_-7.408_20.003, a dark limb on a dark gradient: 0.484 against 0.469, 8.6 px off; the
     first fit grown 0.664, 0.17 px). Not when the best has less than min_support (no sphere): in
     frames without one, a circle grown there was named as a cut sphere."""
-    decisive = (1.0 + p["min_support"]) / 2.0
+    decisive = _decisive_support(p)
     f0, fb = fits[0], fits[ib]
     dx, dy = f0[0] - fb[0], f0[1] - fb[1]
     if ib != 0 and f0[3] < decisive and fb[3] >= p["min_support"] and dx * dx + dy * dy < fb[2] * fb[2]:
@@ -1087,7 +1094,7 @@ def _tangent(img, dirs, fit, p):
     (1 + min_support) / 2, at most GROW_ROUNDS tries. Only for the sphere, after every decision
     (which circle is the sphere, cut, two spheres): it moves the sphere's circle, never whether
     the frame is answered. Returns (cx, cy, r, support)."""
-    decisive = (1.0 + p["min_support"]) / 2.0
+    decisive = _decisive_support(p)
     best = fit
     if not best[3] < decisive:
         return best
@@ -1268,7 +1275,7 @@ def _find_sphere_v2(frame, p, camera=None):
         _check_size(frame, camera)
     rmin, rmax = radius_range(h, w, p, camera)
     cands, s = _coarse(frame, p, rmin, rmax)
-    decisive = (1.0 + p["min_support"]) / 2.0
+    decisive = _decisive_support(p)
     dirs = _ray_dirs(p["rays"])
     fits = []
     for c in cands:

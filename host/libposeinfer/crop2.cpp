@@ -1646,6 +1646,15 @@ bool passes_from(const Frame &f, const std::vector<double> &dirs, const pp_param
     return true;
 }
 
+// A support that settles a fit, halfway from min_support to every ray: a
+// weaker fit is tried again (grown, the first fit, tangent), and a coarse peak
+// whose centre lies inside a fit this well supported is not refined
+// (preprocess.py _decisive_support).
+double decisive_support(const pp_params *p)
+{
+    return (1.0 + p->min_support) / 2.0;
+}
+
 // A weakly supported fit tried again from larger circles (preprocess.py
 // _grow): from the same centre with the radius fine_window_px and 2
 // fine_window_px larger, and when inward (a fit that was no sphere) then as
@@ -1703,7 +1712,7 @@ void grown(const Frame &f, const std::vector<double> &dirs, const pp_params *p, 
 void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
              Rays *rays, Rays *spare)
 {
-    const double decisive = (1.0 + p->min_support) / 2.0;
+    const double decisive = decisive_support(p);
     if (!(fit->support < decisive)) return;
     // the supported rays' directions: of the fit (its support again, the same value), then
     // of the circle that replaced it
@@ -2222,7 +2231,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // the fits' support rays (bank[i]: all[i]'s), kept between frames; one more for grow's tries
     thread_local std::vector<Rays> bank;
     if (bank.size() < cands.size() + 1) bank.resize(cands.size() + 1);
-    const double decisive = (1.0 + p->min_support) / 2.0;
+    const double decisive = decisive_support(p);
     for (const Cand &c : cands) {
         // a peak whose centre lies inside a decisively supported fit is that circle again or
         // the texture's arcs inside it: neither a better sphere nor a second one (the check
