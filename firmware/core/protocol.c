@@ -177,7 +177,8 @@ void protocol_execute_realtime(void)
   }
 }
 
-static void protocol_exec_rt_system(void)
+// A pending alarm: report it and lock; a critical one waits here for a reset.
+static void protocol_exec_alarm(void)
 {
   uint8_t rt_exec = sys_rt_exec_alarm;
   if (rt_exec) {
@@ -204,10 +205,19 @@ static void protocol_exec_rt_system(void)
     }
     system_clear_exec_alarm();
   }
+}
 
-  rt_exec = sys_rt_exec_state;
+static void protocol_exec_rt_system(void)
+{
+  protocol_exec_alarm();
+
+  uint8_t rt_exec = sys_rt_exec_state;
   if (rt_exec) {
     if (rt_exec & EXEC_RESET) {
+      // mc_reset (UART ISR) raises EXEC_RESET and its alarm together: if it ran
+      // after the alarm was read above, that alarm is reported and locks first,
+      // or the reset would clear it and come up Idle after a lost move.
+      protocol_exec_alarm();
       sys.abort = 1;
       return;
     }
