@@ -258,14 +258,18 @@ static void test_late_reply_not_taken_for_next(void **state)
     fake f;
     stage s;
     char err[RIG_ERR_LEN];
+    struct pollfd late_ok;
     (void)state;
     /* The ok of a timed-out command arrives late; the next command must
-     * wait for its own reply (error:9 here), not take the stale ok. */
+     * wait for its own reply (error:9 here), not take the stale ok. The ok
+     * comes 1.1 s after the client's 400 ms timeout, so a stalled client
+     * still times out first; the next command goes once it is there. */
     open_ok(&s, &f,
-            BANNER "polls 1\nexpect $X\nsleep 500\nsend ok\n"
+            BANNER "polls 1\nexpect $X\nsleep 1500\nsend ok\n"
                    "expect $X\nsend error:9\nend\n");
     assert_int_equal(stage_unlock(&s, err), -1);
-    usleep(300 * 1000);
+    late_ok = (struct pollfd){s.fd, POLLIN, 0};
+    assert_int_equal(poll(&late_ok, 1, 10000), 1);
     assert_int_equal(stage_unlock(&s, err), -1);
     assert_non_null(strstr(err, "error:9"));
     stage_close(&s);
