@@ -313,11 +313,14 @@ def test_reset_mid_move(grbl):
 def stream_lines(st, lines, poll_period=0.1, timeout=300):
     """GRBL's character-counting streaming (stream.py): keep the firmware's
     128-byte receive buffer full, never overfull, while a '?' status query
-    goes out every poll_period seconds. Returns (oks, errors, reports, polls)."""
+    goes out every poll_period seconds, one at a time: the next only after
+    the report (two queries the firmware has not yet answered merge into one
+    report, as in GRBL). Returns (oks, errors, reports, polls)."""
     pending = []            # lengths of lines sent and not yet acknowledged
     sent = oks = polls = 0
     errors, reports = [], []
-    next_poll = time.monotonic()
+    poll_outstanding = False
+    next_poll = time.monotonic() + poll_period
     t_end = time.monotonic() + timeout
     while oks + len(errors) < len(lines):
         assert time.monotonic() < t_end, f"streaming stalled at {oks} ok of {len(lines)}"
@@ -326,10 +329,11 @@ def stream_lines(st, lines, poll_period=0.1, timeout=300):
             st.write(data)
             pending.append(len(data))
             sent += 1
-        if time.monotonic() >= next_poll:
+        if not poll_outstanding and time.monotonic() >= next_poll:
             st.write(b"?")
             polls += 1
-            next_poll += poll_period
+            poll_outstanding = True
+            next_poll = time.monotonic() + poll_period
         st.pump(0.005)
         while b"\n" in st.rx:
             line = st.readline(1)
@@ -341,6 +345,7 @@ def stream_lines(st, lines, poll_period=0.1, timeout=300):
                 errors.append((oks + len(errors), line))
             elif line.startswith("<"):
                 reports.append(parse_status(line))
+                poll_outstanding = False
             elif line.strip():
                 errors.append((oks + len(errors), line))   # ALARM, unexpected text
     return oks, errors, reports, polls
