@@ -132,7 +132,7 @@ def test_sender_overfilling_by_a_line_with_queries(grbl):
 def test_utf8_encoded_realtime_bytes(grbl):
     """C2 85 (U+0085, as a UTF-8 sender writes 0x85) cancels a jog; the
     continuation byte of another character (C3 85, 'Å') does not."""
-    grbl.ok("$J=G91 X10 F600")
+    grbl.ok("$J=G91 X10 F150")                # 4 s: still jogging after a stall
     grbl.wait_state("Jog")
     grbl.write("Å".encode())                 # C3 85
     grbl.run_cycles(stagelib.F_CPU // 10)
