@@ -3,6 +3,7 @@ frame-server camera, continuous capture, signals, idle CPU."""
 import json
 import os
 import re
+import select
 import shutil
 import signal
 import socket
@@ -17,6 +18,23 @@ from pihelpers import dots_texture, sphere_frame
 cv2 = pytest.importorskip("cv2")
 
 
+def read_line(pipe, deadline):
+    """One line from a program's pipe by time.time() deadline: '' at its end,
+    None when the deadline comes first. A byte at a time, so that nothing
+    waits in a buffer select() does not see."""
+    fd = pipe.fileno()
+    line = b""
+    while not line.endswith(b"\n"):
+        ready, _, _ = select.select([fd], [], [], max(0.0, deadline - time.time()))
+        if not ready:
+            return None
+        byte = os.read(fd, 1)
+        if not byte:
+            break
+        line += byte
+    return line.decode(errors="replace")
+
+
 class Daemon:
     def __init__(self, poseinfer, args, scale):
         self.proc = subprocess.Popen([str(poseinfer)] + [str(a) for a in args], stdout=subprocess.PIPE,
@@ -25,8 +43,8 @@ class Daemon:
         self.stderr_lines = []
         # wait for "listening on ..." on stderr
         deadline = time.time() + 30 * scale
-        while time.time() < deadline:
-            line = self.proc.stderr.readline()
+        while True:
+            line = read_line(self.proc.stderr, deadline)
             if not line:
                 break
             self.stderr_lines.append(line)
@@ -34,6 +52,7 @@ class Daemon:
                 self.addr = line.split("listening on ")[1].split(" ")[0]
                 return
         self.proc.kill()
+        self.proc.wait()
         raise AssertionError("daemon did not start: " + "".join(self.stderr_lines) + self.proc.stderr.read())
 
     def connect(self):
@@ -188,10 +207,16 @@ def test_continuous_stops_on_sigterm(poseinfer, models, frame_server, timeout_sc
     p = subprocess.Popen([str(poseinfer), "--model", str(models["good"]), "--camera", f"unix:{srv.path}",
                           "--continuous", "--interval-ms", "50"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
-    first = p.stdout.readline()
-    assert "x" in json.loads(first)
-    p.send_signal(signal.SIGTERM)
-    assert p.wait(timeout=20 * timeout_scale) == 0
+    try:
+        first = read_line(p.stdout, time.time() + 30 * timeout_scale)
+        assert first, f"no frame in {30 * timeout_scale} s"
+        assert "x" in json.loads(first)
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(timeout=20 * timeout_scale) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
 
 
 def test_camera_that_is_not_there(run, models, tmp_path):
@@ -226,7 +251,8 @@ def test_real_virtual_camera(run, models, tmp_path, timeout_scale):
     p = subprocess.Popen([str(sim), "vcam", "--texture", str(tex), "--socket", str(sock), "--pose", "10", "-5", "20"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        line = p.stdout.readline()
+        line = read_line(p.stdout, time.time() + 60 * timeout_scale)
+        assert line is not None, f"sim vcam said nothing in {60 * timeout_scale} s"
         if not line.startswith("VCAM"):
             pytest.skip(f"sim vcam did not start: {line} {p.stderr.read()[-300:] if p.poll() is not None else ''}")
         r = run("--model", models["good"], "--camera", f"unix:{sock}", "--continuous", "--count", "2",
