@@ -41,6 +41,7 @@ class Daemon:
                                      stderr=subprocess.PIPE, text=True)
         self.scale = scale
         self.stderr_lines = []
+        self.log = []  # stderr lines read after "listening on" (wait_log); stop() puts them in rest
         # wait for "listening on ..." on stderr
         deadline = time.time() + 30 * scale
         while True:
@@ -55,6 +56,16 @@ class Daemon:
         self.proc.wait()
         raise AssertionError("daemon did not start: " + "".join(self.stderr_lines) + self.proc.stderr.read())
 
+    def wait_log(self, text, timeout):
+        """Read stderr until a line holds text, within timeout (scaled) seconds."""
+        deadline = time.time() + timeout * self.scale
+        while True:
+            line = read_line(self.proc.stderr, deadline)
+            assert line, f"no {text!r} on stderr in {timeout * self.scale} s: {''.join(self.log)}"
+            self.log.append(line)
+            if text in line:
+                return line
+
     def connect(self):
         if self.addr.startswith("unix:"):
             s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -68,7 +79,7 @@ class Daemon:
     def stop(self, sig=signal.SIGTERM):
         self.proc.send_signal(sig)
         rc = self.proc.wait(timeout=30 * self.scale)
-        self.rest = self.proc.stderr.read()
+        self.rest = "".join(self.log) + self.proc.stderr.read()
         for bad in ("AddressSanitizer", "LeakSanitizer", "runtime error"):
             assert bad not in self.rest, self.rest
         return rc
@@ -155,7 +166,7 @@ def test_sighup_reload(daemon, models, frames, tmp_path):
     # a broken model on reload: the old one stays
     shutil.copy(models["nometa"], m)
     d.proc.send_signal(signal.SIGHUP)
-    time.sleep(1.0 * d.scale)
+    d.wait_log("SIGHUP: reload failed", 20)
     again = ask(f, f"infer {frames['good.png']}")
     assert again["x"] == after["x"]
     r = ask(f, "reload")
