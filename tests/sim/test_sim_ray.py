@@ -1,6 +1,7 @@
 """`sim dataset --engine ray`: a real Ray cluster on this machine (a head with 2 CPUs, started with
 `ray start --head` as docs/cluster.md says) renders the same bytes as the local engine, and a
 task whose worker is killed is run again."""
+import importlib.util
 import os
 import shutil
 import signal
@@ -36,11 +37,15 @@ def cluster():
     temp = tempfile.mkdtemp(prefix="ray", dir="/tmp")      # short: Ray's socket paths live under it
     env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN=uuid.uuid4().hex, RAY_ADDRESS="")
     port = free_port()
+    # with ray[client] (grpc) installed the head also serves Ray clients, by
+    # default on 10001, which another head on the machine may hold; without
+    # it there is no such server and ray start refuses the option
+    client_port = ["--ray-client-server-port", str(free_port())] if importlib.util.find_spec("grpc") else []
     log = open(os.path.join(temp, "head.log"), "w")
     head = subprocess.Popen(
         [os.path.join(BIN, "ray"), "start", "--head", "--block", "--port", str(port), "--num-cpus", "2",
          "--include-dashboard", "false", "--disable-usage-stats", "--temp-dir", temp,
-         "--dashboard-agent-listen-port", str(free_port())],
+         "--dashboard-agent-listen-port", str(free_port()), *client_port],
         env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     address = f"127.0.0.1:{port}"
     try:
