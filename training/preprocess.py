@@ -1183,13 +1183,27 @@ def _in_frame(dirs, cx, cy, r, p, h, w):
     return int(ok.all(axis=1).sum())
 
 
-def _in_frame_support(dirs, c, p, h, w, share):
-    """Circle c's support over its rays in the frame (its supported rays are among them), when at
-    least `share` of its rays are in the frame; else None."""
+def _in_frame_support(dirs, c, p, h, w, share, support=None):
+    """Circle c's support (or `support`, a share of all its rays) over its rays in the frame (its
+    supported rays are among them), when at least `share` of its rays are in the frame; else
+    None."""
     n = _in_frame(dirs, c[0], c[1], c[2], p, h, w)
     if n == 0 or n < share * len(dirs):
         return None
-    return c[3] * len(dirs) / n
+    return (c[3] if support is None else support) * len(dirs) / n
+
+
+def _beside_support(img, dirs, a, b, p):
+    """Circle b's support with its rays whose point on b lies on sphere a's disc counted as
+    without: there a's texture or rim is no rim of b's (a sphere behind a is hidden there, as the
+    post hides the sphere's own rim). b's support itself when the circles do not overlap."""
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    if dx * dx + dy * dy >= (a[2] + b[2]) * (a[2] + b[2]):
+        return b[3]
+    X = b[0] + b[2] * dirs[:, 0]
+    Y = b[1] + b[2] * dirs[:, 1]
+    off = (X - a[0]) * (X - a[0]) + (Y - a[1]) * (Y - a[1]) >= a[2] * a[2]
+    return int((_support_rays(img, dirs, b[0], b[1], b[2], p) & off).sum()) / len(dirs)
 
 
 def _lit(img, dirs, c, p):
@@ -1319,14 +1333,19 @@ def _find_sphere_v2(frame, p, camera=None):
         raise NoSphere(_cut_message(cut, p) if _lit(frame, dirs, a, p)
                        else _no_sphere_message(frame, dirs, fits, p, rmin, rmax))
     for b in found:
-        if b is not a and _second(frame, dirs, a, b, p):
+        if (b is not a and _second(frame, dirs, a, b, p)
+                and _beside_support(frame, dirs, a, b, p) >= p["min_support"]):
             raise NoSphere(_two_spheres(a, b))
     # a second sphere partly outside the frame: judged by its rays in the frame (SECOND_IN_FRAME)
     for b in fits:
         if b[3] >= p["min_support"] or not _sized(b[2], rmin, rmax):
             continue  # judged above, or not of a sphere's size
         s = _in_frame_support(dirs, b, p, h, w, SECOND_IN_FRAME)
-        if s is not None and s >= p["min_support"] and _second(frame, dirs, a, b, p):
+        # its beside support last: its own support unless the circles overlap, and then a
+        # support's rays again
+        if (s is not None and s >= p["min_support"] and _second(frame, dirs, a, b, p)
+                and _in_frame_support(dirs, b, p, h, w, SECOND_IN_FRAME,
+                                      _beside_support(frame, dirs, a, b, p)) >= p["min_support"]):
             raise NoSphere(_two_spheres(a, b))
     # a second sphere whose fit settled on its texture: weak circles of the sphere's size beside
     # it tried again as the sphere's weak fit is (SECOND_RETRY)
@@ -1335,7 +1354,8 @@ def _find_sphere_v2(frame, p, camera=None):
                 or not _apart(a, b, p)):
             continue
         g = _grown(frame, dirs, b, p, True, p["min_support"])
-        if g[3] >= p["min_support"] and _sized(g[2], rmin, rmax) and _second(frame, dirs, a, g, p):
+        if (g[3] >= p["min_support"] and _sized(g[2], rmin, rmax) and _second(frame, dirs, a, g, p)
+                and _beside_support(frame, dirs, a, g, p) >= p["min_support"]):
             raise NoSphere(_two_spheres(a, g))
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)

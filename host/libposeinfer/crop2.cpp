@@ -1504,7 +1504,7 @@ static bool sides_clear(const double *sc, const long *idx, size_t ni, size_t no,
 // (when not null): the sum of the supported rays' directions, in ray order
 // (preprocess.py _tangent).
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
-               const pp_params *p, Rays *keep, double side[2] = nullptr)
+               const pp_params *p, Rays *keep, double side[2] = nullptr, const char *only = nullptr)
 {
     const int K = (int)dirs.size() / 2;
     thread_local RayScores rs;
@@ -1541,6 +1541,7 @@ double support(const Frame &f, const std::vector<double> &dirs, double cx, doubl
     };
     for (int k = 0; k < K; k++) {
         keep->off[(size_t)k] = (int32_t)keep->pos.size();
+        if (only && !only[k]) continue;
         if (!rs.ray(f, cx, cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1])) continue;
         // the peaks near the circle first: the median only for a ray with one
         near.clear();
@@ -2020,17 +2021,38 @@ int in_frame(const Frame &f, const std::vector<double> &dirs, double cx, double 
     return n;
 }
 
-// Circle c's support over its rays in the frame (*s), when at least `share`
-// of its rays are in the frame; false otherwise (preprocess.py
+// Circle c's support (or sup, a share of all its rays) over its rays in the
+// frame (*s; its supported rays are among them), when at least `share` of
+// its rays are in the frame; false otherwise (preprocess.py
 // _in_frame_support).
-bool in_frame_support(const Frame &f, const std::vector<double> &dirs, const Found &c,
+bool in_frame_support(const Frame &f, const std::vector<double> &dirs, const Found &c, double sup,
                       const pp_params *p, double share, double *s)
 {
     const int K = (int)dirs.size() / 2;
     const int n = in_frame(f, dirs, c.cx, c.cy, c.r, p);
     if (n == 0 || n < share * K) return false;
-    *s = c.support * K / n;
+    *s = sup * K / n;
     return true;
+}
+
+// Circle b's support with its rays whose point on b lies on sphere a's disc
+// counted as without: there a's texture or rim is no rim of b's (a sphere
+// behind a is hidden there, as the post hides the sphere's own rim). b's
+// support itself when the circles do not overlap (preprocess.py
+// _beside_support). *spare: scratch.
+double beside_support(const Frame &f, const std::vector<double> &dirs, const Found &a,
+                      const Found &b, const pp_params *p, Rays *spare)
+{
+    const double dx = b.cx - a.cx, dy = b.cy - a.cy;
+    if (dx * dx + dy * dy >= (a.r + b.r) * (a.r + b.r)) return b.support;
+    const int K = (int)dirs.size() / 2;
+    thread_local std::vector<char> off;
+    off.resize((size_t)K);
+    for (int k = 0; k < K; k++) {
+        const double X = b.cx + b.r * dirs[2 * (size_t)k], Y = b.cy + b.r * dirs[2 * (size_t)k + 1];
+        off[(size_t)k] = (X - a.cx) * (X - a.cx) + (Y - a.cy) * (Y - a.cy) >= a.r * a.r;
+    }
+    return support(f, dirs, b.cx, b.cy, b.r, p, spare, nullptr, off.data());
 }
 
 // Whether circle c may be a lit sphere cut by the frame edge: its inside no
@@ -2098,7 +2120,8 @@ void no_sphere(const Frame &f, const std::vector<double> &dirs, const std::vecto
         const double cut = rim_outside(c.cx, c.cy, c.r, f.h, f.w);
         if (!(cut > p->max_cut)) continue;
         double s, sh;
-        if (!in_frame_support(f, dirs, c, p, 0.5, &s) || !(s >= p->min_support)) continue;
+        if (!in_frame_support(f, dirs, c, c.support, p, 0.5, &s) || !(s >= p->min_support))
+            continue;
         if (!limb_shading(f, dirs, c.cx, c.cy, c.r, p, &sh) || !(sh >= cut_shade)) continue;
         best = (long)i;
         best_cut = cut;
@@ -2305,7 +2328,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // the other circle, its inside not flat where the sphere's is shaded: a
     // second sphere
     for (size_t i = 0; i < fits.size(); i++)
-        if ((long)i != ia && second(f, dirs, a, all[fits[i]], p)) {
+        if ((long)i != ia && second(f, dirs, a, all[fits[i]], p) &&
+            beside_support(f, dirs, a, all[fits[i]], p, &bank[all.size()]) >= p->min_support) {
             two_spheres(a, all[fits[i]], err, errlen);
             return -1;
         }
@@ -2315,8 +2339,13 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         // judged above, or not of a sphere's size
         if (b.support >= p->min_support || !sized(b.r, rmin, rmax)) continue;
         double s_in;
-        if (in_frame_support(f, dirs, b, p, second_in_frame, &s_in) && s_in >= p->min_support &&
-            second(f, dirs, a, b, p)) {
+        // its beside support last: it is its own support unless the circles overlap, and
+        // then costs a support's rays
+        if (in_frame_support(f, dirs, b, b.support, p, second_in_frame, &s_in) &&
+            s_in >= p->min_support && second(f, dirs, a, b, p) &&
+            in_frame_support(f, dirs, b, beside_support(f, dirs, a, b, p, &bank[all.size()]), p,
+                             second_in_frame, &s_in) &&
+            s_in >= p->min_support) {
             two_spheres(a, b, err, errlen);
             return -1;
         }
@@ -2331,7 +2360,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
             continue;
         Found g = b;
         grown(f, dirs, p, &g, bank, i, all.size(), true, p->min_support);
-        if (g.support >= p->min_support && sized(g.r, rmin, rmax) && second(f, dirs, a, g, p)) {
+        if (g.support >= p->min_support && sized(g.r, rmin, rmax) && second(f, dirs, a, g, p) &&
+            beside_support(f, dirs, a, g, p, &bank[all.size()]) >= p->min_support) {
             two_spheres(a, g, err, errlen);
             return -1;
         }
