@@ -12,6 +12,7 @@
 #include "protocol.h"  // protocol_execute_realtime
 #include "motion.h"    // mc_reset
 #include "gcode.h"     // gc_sync_position
+#include "report.h"    // report_realtime_status
 
 void limits_init(void)
 {
@@ -116,7 +117,12 @@ static uint8_t limits_homing_move(uint8_t mask, float distance, float rate, uint
       break;
     }
     if (approach && axislock == 0) break;
-    if (rt & EXEC_STATUS_REPORT) protocol_execute_realtime();  // status only; homing state keeps motion
+    if (rt & EXEC_STATUS_REPORT) {
+      // Status only: the homing state keeps the motion, and a reset is taken above (the whole
+      // realtime step here would report a Ctrl-X's alarm that the exit below reports again).
+      system_clear_exec_state_flag(EXEC_STATUS_REPORT);
+      report_realtime_status();
+    }
   }
   st_reset();
   plan_reset();
