@@ -1184,9 +1184,9 @@ def _in_frame(dirs, cx, cy, r, p, h, w):
 
 
 def _in_frame_support(dirs, c, p, h, w, share, support=None):
-    """Circle c's support (or `support`, a share of all its rays) over its rays in the frame (its
-    supported rays are among them), when at least `share` of its rays are in the frame; else
-    None."""
+    """Circle c's support (or `support`, a share of all its rays: its beside support) over its
+    rays in the frame (its supported rays are among them), when at least `share` of its rays are
+    in the frame; else None."""
     n = _in_frame(dirs, c[0], c[1], c[2], p, h, w)
     if n == 0 or n < share * len(dirs):
         return None

@@ -1502,7 +1502,9 @@ static bool sides_clear(const double *sc, const long *idx, size_t ni, size_t no,
 // sphere's side. Each ray's peaks of at least ray_edge_min (sub-pixel place
 // and outer half-maximum) go to *keep, for the sphere's last step. side
 // (when not null): the sum of the supported rays' directions, in ray order
-// (preprocess.py _tangent).
+// (preprocess.py _tangent). only (when not null): the rays to look at; the
+// others count as without support and keep no peaks, so such a *keep is
+// never the sphere's (preprocess.py _beside_support).
 double support(const Frame &f, const std::vector<double> &dirs, double cx, double cy, double r,
                const pp_params *p, Rays *keep, double side[2] = nullptr, const char *only = nullptr)
 {
@@ -2021,10 +2023,10 @@ int in_frame(const Frame &f, const std::vector<double> &dirs, double cx, double 
     return n;
 }
 
-// Circle c's support (or sup, a share of all its rays) over its rays in the
-// frame (*s; its supported rays are among them), when at least `share` of
-// its rays are in the frame; false otherwise (preprocess.py
-// _in_frame_support).
+// A support sup of circle c (a share of all its rays: its own, or its beside
+// support) over its rays in the frame (*s; its supported rays are among
+// them), when at least `share` of its rays are in the frame; false otherwise
+// (preprocess.py _in_frame_support).
 bool in_frame_support(const Frame &f, const std::vector<double> &dirs, const Found &c, double sup,
                       const pp_params *p, double share, double *s)
 {

@@ -7,13 +7,19 @@ frame 14 of the `rig` family, seed 410 (a clutter ellipse of the sphere's size c
 bottom edge: its rays in the frame 0.44 supported, 10 of its 44 supported rays on the sphere), and
 frame 82 of the `rig-photo` family, seed 503 (a motorcycle photo: a circle grown to 0.422, 10 of
 its 54 supported rays on the sphere). Both are now answered within 0.5 px and 0.5 % of the truth.
-The C runtime gives the same circles."""
+A sphere partly behind the sphere, a fifth of its rim hidden, is still a second sphere, in
+Python and in C. The C runtime gives the same circles."""
+import json
+import subprocess
+
 import cv2
 import numpy as np
 import pytest
 
+from pihelpers import sphere_frame
 from training import preprocess as pp
-from v2_raycast_cases import CAMERA, assert_same_circles_in_c, assert_within_limits, params, render_seeded
+from v2_raycast_cases import (CAMERA, MODEL, assert_same_circles_in_c, assert_within_limits, params,
+                              render_seeded)
 
 OVERLAPPING = [(("rig", 14, "23.404_-18.313_11.347.png"), 410),
                (("rig-photo", 82, "-4.913_15.483_18.591.png"), 503)]
@@ -52,3 +58,28 @@ def test_rays_on_the_sphere_do_not_support():
 
 def test_same_circles_in_c(frames, tmp_path, poseinfer, timeout_scale):
     assert_same_circles_in_c(poseinfer, [path for path, _ in frames], tmp_path, timeout_scale)
+
+
+def behind_frame(path):
+    """Two discs with texture blobs, the one on the left in front hiding a fifth of the other's
+    rim (pihelpers.sphere_frame twice)."""
+    back = sphere_frame(cx=420, cy=256, r=110, seed=41)
+    front = sphere_frame(cx=250, cy=256, r=110, seed=42)
+    yy, xx = np.mgrid[0:512, 0:640]
+    cv2.imwrite(str(path), np.where(((xx - 250) ** 2 + (yy - 256) ** 2 <= 110 ** 2)[..., None], front, back))
+    return path
+
+
+def test_a_sphere_behind_is_still_a_second_one(tmp_path, poseinfer, timeout_scale, monkeypatch):
+    path = behind_frame(tmp_path / "behind.png")
+    seen = []
+    beside = pp._beside_support
+    monkeypatch.setattr(pp, "_beside_support",
+                        lambda img, dirs, a, b, p: seen.append((b[3], beside(img, dirs, a, b, p))) or seen[-1][1])
+    with pytest.raises(pp.NoSphere, match="two spheres") as err:
+        pp.find_sphere(cv2.imread(str(path), cv2.IMREAD_COLOR), params())
+    # judged by the whole-circle rule, its rays on the front disc counted as without
+    assert len(seen) == 1 and 0.42 <= seen[0][1] < seen[0][0], seen
+    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), str(path)], capture_output=True, text=True,
+                          timeout=120 * timeout_scale)
+    assert json.loads(proc.stdout.splitlines()[0]).get("error") == "preprocess: " + str(err.value), proc.stdout
