@@ -93,4 +93,16 @@ static inline const char *h_take(void)
   return taken;
 }
 
+// A new chip, powered on: EEPROM erased, no steps counted, the banner taken
+// (the tests' cmocka setup).
+static inline int h_new_chip(void **state)
+{
+  (void)state;
+  h_erase_eeprom();
+  memset(host_motor_steps, 0, sizeof(host_motor_steps));
+  h_boot();
+  h_take();
+  return 0;
+}
+
 #endif

@@ -15,10 +15,7 @@
 
 static int setup(void **state)
 {
-  h_erase_eeprom();
-  memset(host_motor_steps, 0, sizeof(host_motor_steps));
-  h_boot();
-  h_take();
+  h_new_chip(state);
   host_max_step_rate_hz = 0;
   return 0;
 }

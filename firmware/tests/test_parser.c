@@ -11,15 +11,6 @@
 #include "nuts.h"
 #include "codes.h"
 
-static int setup(void **state)
-{
-  h_erase_eeprom();
-  memset(host_motor_steps, 0, sizeof(host_motor_steps));
-  h_boot();
-  h_take();
-  return 0;
-}
-
 // Send one line through the whole path; return the status of its reply.
 static uint8_t run_gc(const char *text)
 {
@@ -217,13 +208,13 @@ int main(void)
 {
   const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_read_float),
-    cmocka_unit_test_setup(test_line_reader_cleans, setup),
-    cmocka_unit_test_setup(test_line_reader_overflow, setup),
-    cmocka_unit_test_setup(test_one_reply_per_line, setup),
-    cmocka_unit_test_setup(test_modal_commands, setup),
-    cmocka_unit_test_setup(test_motion_and_offsets, setup),
-    cmocka_unit_test_setup(test_malformed, setup),
-    cmocka_unit_test_setup(test_system_commands, setup),
+    cmocka_unit_test_setup(test_line_reader_cleans, h_new_chip),
+    cmocka_unit_test_setup(test_line_reader_overflow, h_new_chip),
+    cmocka_unit_test_setup(test_one_reply_per_line, h_new_chip),
+    cmocka_unit_test_setup(test_modal_commands, h_new_chip),
+    cmocka_unit_test_setup(test_motion_and_offsets, h_new_chip),
+    cmocka_unit_test_setup(test_malformed, h_new_chip),
+    cmocka_unit_test_setup(test_system_commands, h_new_chip),
   };
   return cmocka_run_group_tests_name("parser", tests, NULL, NULL);
 }

@@ -29,15 +29,6 @@ static volatile uint8_t *state_read(void)
 #include "protocol.c"
 #undef sys_rt_exec_state
 
-static int setup(void **state)
-{
-  h_erase_eeprom();
-  memset(host_motor_steps, 0, sizeof(host_motor_steps));
-  h_boot();
-  h_take();
-  return 0;
-}
-
 // Ctrl-X mid-move after protocol_exec_rt_system has read no alarm but before
 // it reads EXEC_RESET: mc_reset raised both, so the reset must still say
 // ALARM:3 and come up locked (steps may be lost), never Idle.
@@ -73,7 +64,7 @@ static void test_reset_between_alarm_and_state_reads(void **state)
 int main(void)
 {
   const struct CMUnitTest tests[] = {
-    cmocka_unit_test_setup(test_reset_between_alarm_and_state_reads, setup),
+    cmocka_unit_test_setup(test_reset_between_alarm_and_state_reads, h_new_chip),
   };
   if (getenv("TEST_FILTER")) cmocka_set_test_filter(getenv("TEST_FILTER"));
   return cmocka_run_group_tests_name("realtime", tests, NULL, NULL);
