@@ -143,6 +143,9 @@ def test_utf8_encoded_realtime_bytes(grbl):
     assert round(st["mpos"][0] * 800) == grbl.steps()[0]
 
 
+OPTIBOOT = ROOT / "sim" / "stage" / "build" / "optiboot_atmega328.hex"
+
+
 def reopen(st):
     os.close(st.fd)
     st.rx = b""
@@ -165,6 +168,25 @@ def test_reopening_the_port_resets_like_an_uno(grbl):
         assert grbl.status()["mpos"] == [0.0, 0.0, 0.0]
         assert grbl.steps()[0] == 800
         assert grbl.query("uart")["auto_resets"] == n + 1
+
+
+def test_flush_after_open_with_optiboot(make_stage, firmware_elf):
+    """With the Uno's bootloader in front of the firmware, a sender that flushes
+    the port's input right after opening it (as senders do) still gets the
+    banner: Optiboot waits about a second for an upload after the reset the
+    open gives, and the firmware greets only then."""
+    r = subprocess.run(["make", "-s", "-C", str(ROOT / "sim" / "stage"), "optiboot"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    st = make_stage(elf=firmware_elf, args=["--bootloader", str(OPTIBOOT)])
+    st.start()
+    t0 = time.monotonic()
+    reopen(st)
+    termios.tcflush(st.fd, termios.TCIFLUSH)
+    st.banner()
+    # the bootloader's wait (simulated time, kept no faster than the wall clock)
+    assert time.monotonic() - t0 >= 0.5
+    assert st.query("uart")["auto_resets"] == 1
 
 
 def test_no_auto_reset(make_stage, firmware_elf):
