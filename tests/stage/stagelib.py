@@ -275,11 +275,28 @@ class Stage:
                 raise StageError(f"state stays {st}, wanted {names}")
             time.sleep(poll)
 
+    def drop_reports(self, quiet=0.2):
+        """Read until the line has been quiet for `quiet` s and throw away the
+        status reports that came: answers to '?' sent before (a streaming
+        sender's polls), which the next query would take for its own. Every
+        other line is kept."""
+        while True:
+            before = len(self.rx)
+            self.pump(quiet)
+            if len(self.rx) == before:
+                break
+        head, sep, tail = self.rx.rpartition(b"\n")
+        if sep:
+            kept = [line for line in head.split(b"\n") if not line.startswith(b"<")]
+            self.rx = b"".join(line + b"\n" for line in kept) + tail
+
     def wait_idle(self, timeout=60.0):
         """Wait for the motion just queued to finish: give the firmware 20 ms of
         simulated time to start it (an 'ok' comes before the cycle starts),
-        then poll until Idle."""
+        drop the reports of earlier queries (an Idle of a moment the sender
+        starved the planner would end the wait mid-move), then poll until Idle."""
         self.run_cycles(F_CPU // 50)
+        self.drop_reports()
         return self.wait_state("Idle", timeout)
 
     def banner(self, timeout=10.0):
