@@ -353,6 +353,17 @@ def stream_lines(st, lines, poll_period=0.1, timeout=300):
                 poll_outstanding = False
             elif line.strip():
                 errors.append((oks + len(errors), line))   # ALARM, unexpected text
+    # the last query's report too, before anyone else reads the line and takes it
+    while poll_outstanding:
+        assert time.monotonic() < t_end, "no report for the last status query"
+        st.pump(0.05)
+        while b"\n" in st.rx:
+            line = st.readline(1)
+            if line.startswith("<"):
+                reports.append(parse_status(line))
+                poll_outstanding = False
+            elif line.strip():
+                errors.append((oks + len(errors), line))
     return oks, errors, reports, polls
 
 
