@@ -135,8 +135,9 @@ LIMB_MIN = 1.25
 # is judged by its rays in the frame (_in_frame_support): a circle with at least SECOND_IN_FRAME
 # of its rays in the frame (about 30 % of its rim outside at most) is a second sphere when
 # min_support of those rays support it, as a whole circle's would (with the other rules: size,
-# centres, _flat, and its rays on the sphere's disc counted as without: _beside_support). Measured on the development frames (seeds 0, 111-135, 136-140 and the
-# training renderer's val sets): the known case, a `refuse` seed 139 second sphere 20 % outside
+# centres, _flat, and its rays on the sphere's disc counted as without: _beside_support).
+# Measured on the development frames (seeds 0, 111-135, 136-140 and the training renderer's val
+# sets): the known case, a `refuse` seed 139 second sphere 20 % outside
 # the frame, has 0.77 of its rays in it (in-frame support 0.53); circles of clutter disks cut by
 # the frame edge beside a sphere that must be answered have at most 0.59 (75 of 128 rays; in-frame
 # support 0.44-0.52; refused from 0.55 down). On 300 frames of bench/raycast's `two-edge` family
