@@ -2084,6 +2084,41 @@ bool second(const Frame &f, const std::vector<double> &dirs, const Found &a, con
     return apart(a, b, p) && !flat(f, dirs, a, b, p);
 }
 
+// The first fit (of the strongest coarse peak that gave one) tried again as the best one is
+// (grown), in place in all[0], when its support is below decisive_support, it is not the best
+// (all[ib], after its tries), the best has at least min_support and holds its centre: a weaker
+// peak's fit through part of the rim and the texture inside can beat the sphere's own weak fit
+// before its tries (preprocess.py _grow_first: the same, and its measured reason). bank as
+// grown's: bank[i] holds all[i]'s support rays, bank[all.size()] is free.
+void grow_first(const Frame &f, const std::vector<double> &dirs, const pp_params *p,
+                std::vector<Found> &all, std::vector<Rays> &bank, size_t ib)
+{
+    const double decisive = decisive_support(p);
+    const Found &f0 = all[0], &fb = all[ib];
+    const double dx = f0.cx - fb.cx, dy = f0.cy - fb.cy;
+    if (ib != 0 && f0.support < decisive && fb.support >= p->min_support &&
+        dx * dx + dy * dy < fb.r * fb.r)
+        grown(f, dirs, p, &all[0], bank, 0, all.size(), f0.support < p->min_support, decisive);
+}
+
+// The best supported fit, when its support is from second_retry to below min_support after its
+// tries, tried from the circles tangent to it on its supported arc (tangent); the circle reached
+// replaces it only when it reaches min_support and its shading is at least limb_min
+// (preprocess.py _rescue: the same, and its measured reason). *rays holds the support rays of
+// *fit, and of the circle that replaced it after; when none did, they may be another circle's,
+// unused: the frame is then refused (no fit has min_support). *spare is scratch.
+void rescue(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
+            Rays *rays, Rays *spare)
+{
+    if (!(second_retry <= fit->support && fit->support < p->min_support)) return;
+    Found t = *fit;
+    tangent(f, dirs, p, &t, rays, spare);
+    double sh;
+    if (t.support >= p->min_support && limb_shading(f, dirs, t.cx, t.cy, t.r, p, &sh) &&
+        sh >= limb_min)
+        *fit = t;
+}
+
 void cut_message(double cut, const pp_params *p, char *err, size_t errlen)
 {
     pi_seterrn(
@@ -2281,27 +2316,11 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         // circles too, in every try
         grown(f, dirs, p, &all[ib], bank, ib, all.size(), all[ib].support < p->min_support,
               decisive);
-        // and the first fit (of the strongest coarse peak that gave one) too, when weak, not
-        // the best, the best has at least min_support and holds its centre: a weaker peak's fit
-        // through part of the rim and the texture inside can beat the sphere's own weak fit
-        // before its tries (preprocess.py _grow_first: the same, and its measured reason)
-        const Found &f0 = all[0], &fb = all[ib];
-        const double dx = f0.cx - fb.cx, dy = f0.cy - fb.cy;
-        if (ib != 0 && f0.support < decisive && fb.support >= p->min_support &&
-            dx * dx + dy * dy < fb.r * fb.r)
-            grown(f, dirs, p, &all[0], bank, 0, all.size(), f0.support < p->min_support, decisive);
+        // and the first fit too
+        grow_first(f, dirs, p, all, bank, ib);
         // a best fit still below min_support (the frame would be refused) tried from tangent
-        // circles too, kept only as a lit sphere (preprocess.py _rescue: the same, and its
-        // measured reason); its rays in bank[ib] are not needed when it is not kept (the frame
-        // is refused: no fit has min_support)
-        if (second_retry <= all[ib].support && all[ib].support < p->min_support) {
-            Found t = all[ib];
-            tangent(f, dirs, p, &t, &bank[ib], &bank[all.size()]);
-            double sh;
-            if (t.support >= p->min_support && limb_shading(f, dirs, t.cx, t.cy, t.r, p, &sh) &&
-                sh >= limb_min)
-                all[ib] = t;
-        }
+        // circles too, kept only as a lit sphere
+        rescue(f, dirs, p, &all[ib], &bank[ib], &bank[all.size()]);
     }
     // the well supported fits of a radius in range: their indexes into all
     std::vector<size_t> fits;
