@@ -1268,6 +1268,11 @@ def _second(img, dirs, a, b, p):
     return _apart(a, b, p) and not _flat(img, dirs, a, b, p)
 
 
+def _second_beside(img, dirs, a, b, p):
+    """_second, and b's beside support at least min_support (computed last, only then: it is costly)."""
+    return _second(img, dirs, a, b, p) and _beside_support(img, dirs, a, b, p) >= p["min_support"]
+
+
 def rim_outside(cx, cy, r, h, w, k=256):
     """Fraction of the circle's rim outside the frame [0, w - 1] x [0, h - 1] (k points)."""
     d = _ray_dirs(k)
@@ -1334,8 +1339,7 @@ def _find_sphere_v2(frame, p, camera=None):
         raise NoSphere(_cut_message(cut, p) if _lit(frame, dirs, a, p)
                        else _no_sphere_message(frame, dirs, fits, p, rmin, rmax))
     for b in found:
-        if (b is not a and _second(frame, dirs, a, b, p)
-                and _beside_support(frame, dirs, a, b, p) >= p["min_support"]):
+        if b is not a and _second_beside(frame, dirs, a, b, p):
             raise NoSphere(_two_spheres(a, b))
     # a second sphere partly outside the frame: judged by its rays in the frame (SECOND_IN_FRAME)
     for b in fits:
@@ -1355,8 +1359,7 @@ def _find_sphere_v2(frame, p, camera=None):
                 or not _apart(a, b, p)):
             continue
         g = _grown(frame, dirs, b, p, True, p["min_support"])
-        if (g[3] >= p["min_support"] and _sized(g[2], rmin, rmax) and _second(frame, dirs, a, g, p)
-                and _beside_support(frame, dirs, a, g, p) >= p["min_support"]):
+        if g[3] >= p["min_support"] and _sized(g[2], rmin, rmax) and _second_beside(frame, dirs, a, g, p):
             raise NoSphere(_two_spheres(a, g))
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)

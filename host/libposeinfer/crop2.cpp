@@ -2084,6 +2084,14 @@ bool second(const Frame &f, const std::vector<double> &dirs, const Found &a, con
     return apart(a, b, p) && !flat(f, dirs, a, b, p);
 }
 
+// second, and b's beside support at least min_support (computed last, only then: it is costly;
+// preprocess.py _second_beside). *spare: scratch.
+bool second_beside(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
+                   const pp_params *p, Rays *spare)
+{
+    return second(f, dirs, a, b, p) && beside_support(f, dirs, a, b, p, spare) >= p->min_support;
+}
+
 // The first fit (of the strongest coarse peak that gave one) tried again as the best one is
 // (grown), in place in all[0], when its support is below decisive_support, it is not the best
 // (all[ib], after its tries), the best has at least min_support and holds its centre: a weaker
@@ -2349,8 +2357,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // the other circle, its inside not flat where the sphere's is shaded: a
     // second sphere
     for (size_t i = 0; i < fits.size(); i++)
-        if ((long)i != ia && second(f, dirs, a, all[fits[i]], p) &&
-            beside_support(f, dirs, a, all[fits[i]], p, &bank[all.size()]) >= p->min_support) {
+        if ((long)i != ia && second_beside(f, dirs, a, all[fits[i]], p, &bank[all.size()])) {
             two_spheres(a, all[fits[i]], err, errlen);
             return -1;
         }
@@ -2381,8 +2388,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
             continue;
         Found g = b;
         grown(f, dirs, p, &g, bank, i, all.size(), true, p->min_support);
-        if (g.support >= p->min_support && sized(g.r, rmin, rmax) && second(f, dirs, a, g, p) &&
-            beside_support(f, dirs, a, g, p, &bank[all.size()]) >= p->min_support) {
+        if (g.support >= p->min_support && sized(g.r, rmin, rmax) &&
+            second_beside(f, dirs, a, g, p, &bank[all.size()])) {
             two_spheres(a, g, err, errlen);
             return -1;
         }
