@@ -2110,7 +2110,8 @@ void grow_first(const Frame &f, const std::vector<double> &dirs, const pp_params
 }
 
 // The best supported fit, when its support is from second_retry to below min_support after its
-// tries, tried from the circles tangent to it on its supported arc (tangent); the circle reached
+// tries, tried from the circles tangent to it on its supported arc (tangent), and the circle
+// reached, when still below min_support, refitted through a wider band (wide); the circle
 // replaces it only when it reaches min_support and its shading is at least limb_min
 // (preprocess.py _rescue: the same, and its measured reason). *rays holds the support rays of
 // *fit, and of the circle that replaced it after; when none did, they may be another circle's,
@@ -2121,6 +2122,7 @@ void rescue(const Frame &f, const std::vector<double> &dirs, const pp_params *p,
     if (!(second_retry <= fit->support && fit->support < p->min_support)) return;
     Found t = *fit;
     tangent(f, dirs, p, &t, rays, spare);
+    if (!(t.support >= p->min_support)) wide(f, dirs, p, &t, rays, spare);
     double sh;
     if (t.support >= p->min_support && limb_shading(f, dirs, t.cx, t.cy, t.r, p, &sh) &&
         sh >= limb_min)
