@@ -169,21 +169,21 @@ CUT_SHADE = 1.0
 # the algorithm, not a model parameter; host/libposeinfer/crop2.cpp has the same (second_retry).
 SECOND_RETRY = 0.25
 
-# The sphere's circle, when supported below WIDE_BELOW after _tangent, is refitted once more
-# through the outermost edges from 1.5 inlier_px inside it to WIDE_OUT inlier_px outside (the
-# last refit's band reaches 2 inlier_px), and that circle is kept when it is better supported
-# (_wide). Near the limb the sphere's surface is seen edge-on, so a texture band's edge there
-# runs along the rim, 2-4 px inside it, often with a larger colour step than the rim's over a
-# dark backdrop; the fit can settle on such a band along one arc (a circle 1-2 px small, off
-# towards the other side) and stay there: the rim lies beyond the last refit's band, and
-# _tangent's retries start fine_window_px and 2 fine_window_px out (3 and 6 px as shipped). On
-# the 5 500 development frames (the ray-caster's seeds 0, 111-140 and 401-409, two-edge 500-502,
-# rig-photo 501-503, rig-sensor 601-603, and the training renderer's val sets) 12 circles enter
-# the limits of 0.5 px and 0.5 % and none leaves (rig s404 6.666_-1.074_18.715: support after
-# _tangent 0.75 -> 0.85, 1.73 -> 0.05 px off centre); without the gate (every sphere) the same;
-# with the band to 4 inlier_px, 2 fewer. On 1 200 fresh held-out frames (seeds 410-413) none
-# enters and one leaves (0.37 -> 0.60 px). Constants of the algorithm, not model parameters;
-# crop2.cpp has the same (wide_out, wide_below).
+# The sphere's circle (and a refused frame's best fit in _rescue), when supported below WIDE_BELOW
+# after _tangent, is refitted once more through the outermost edges from 1.5 inlier_px inside it
+# to WIDE_OUT inlier_px outside (the last refit's band reaches 2 inlier_px), and that circle is
+# kept when it is better supported (_wide). Near the limb the sphere's surface is seen edge-on, so
+# a texture band's edge there runs along the rim, 2-4 px inside it, often with a larger colour
+# step than the rim's over a dark backdrop; the fit can settle on such a band along one arc (a
+# circle 1-2 px small, off towards the other side) and stay there: the rim lies beyond the last
+# refit's band, and _tangent's retries start fine_window_px and 2 fine_window_px out (3 and 6 px
+# as shipped). On the 5 500 development frames (the ray-caster's seeds 0, 111-140 and 401-409,
+# two-edge 500-502, rig-photo 501-503, rig-sensor 601-603, and the training renderer's val sets)
+# 12 circles enter the limits of 0.5 px and 0.5 % and none leaves (rig s404 6.666_-1.074_18.715:
+# support after _tangent 0.75 -> 0.85, 1.73 -> 0.05 px off centre); without the gate (every
+# sphere) the same; with the band to 4 inlier_px, 2 fewer. On 1 200 fresh held-out frames (seeds
+# 410-413) none enters and one leaves (0.37 -> 0.60 px). Constants of the algorithm, not model
+# parameters; crop2.cpp has the same (wide_out, wide_below).
 WIDE_OUT = 3.0
 WIDE_BELOW = 0.86
 
@@ -889,15 +889,16 @@ def _rescue(img, dirs, fit, p):
     refused as without a sphere. The tangent circles reach it (0.52, 0.29 px off centre). On
     the 7 100 development frames (with the spent held-out seeds 410-413) 4 such frames are
     answered within the limits; without the shading test a `none` frame to refuse (s413, a
-    clutter disk, shading 1.22) was answered too; with it, none. When the tangent circles stay below
-    min_support, the circle they reached is refitted through the outermost edges of a wider band, as
-    the sphere is (_wide), and judged the same way: a dark limb over part of the rim can hold the
-    passes on a band 1-2 px inside it, and the tangent circles slide back there (`rig` s423
-    6.002_0.21_8.019, a grey-blue gradient: the fit 0.383, refitted 0.531, the answer 0.10 px off
-    centre; `edge` s422 -0.345_13.951_1.224, 12 % cut by the frame's top: 0.383, refitted 0.461;
-    0.53 px off). On 3 800 development frames (the ray-caster's seeds 418-425, two-edge 500-502,
-    rig-photo 501-503) those two are answered and nothing else changes; on 1 600 fresh held-out
-    frames (seeds 426-429) nothing changes. Returns (cx, cy, r, support)."""
+    clutter disk, shading 1.22) was answered too; with it, none. When the tangent circles stay
+    below min_support, the circle they reached is refitted through the outermost edges of a
+    wider band, as the sphere is (_wide), and judged the same way: a dark limb over part of the
+    rim can hold the passes on a band 1-2 px inside it, and the tangent circles slide back there
+    (`rig` s423 6.002_0.21_8.019, a grey-blue gradient: the fit 0.383, refitted 0.531, the
+    answer 0.10 px off centre; `edge` s422 -0.345_13.951_1.224, 12 % cut by the frame's top:
+    0.383, refitted 0.461; 0.53 px off). On 3 800 development frames (the ray-caster's seeds
+    418-425, two-edge 500-502, rig-photo 501-503) those two are answered and nothing else
+    changes; on 1 600 fresh held-out frames (seeds 426-429) nothing changes. Returns (cx, cy, r,
+    support)."""
     if not SECOND_RETRY <= fit[3] < p["min_support"]:
         return fit
     t = _tangent(img, dirs, fit, p)
@@ -1103,9 +1104,10 @@ def _tangent(img, dirs, fit, p):
     that circle itself (_tangent_tries), then their support; the best supported of the fit and
     these four (the fit on ties, then the first) replaces it;
     again from the new circle while one of them replaced it and its support is below
-    (1 + min_support) / 2, at most GROW_ROUNDS tries. Only for the sphere, after every decision
-    (which circle is the sphere, cut, two spheres): it moves the sphere's circle, never whether
-    the frame is answered. Returns (cx, cy, r, support)."""
+    (1 + min_support) / 2, at most GROW_ROUNDS tries. For the sphere, after every decision (which
+    circle is the sphere, cut, two spheres), where it moves the sphere's circle, never whether the
+    frame is answered; and in _rescue, on a refused frame's best fit, where it decides that.
+    Returns (cx, cy, r, support)."""
     decisive = _decisive_support(p)
     best = fit
     if not best[3] < decisive:
@@ -1142,7 +1144,8 @@ def _wide(img, dirs, fit, rays, peaks, p):
     """The sphere's fit, when supported below WIDE_BELOW, refitted through the outermost edges
     from 1.5 inlier_px inside it to WIDE_OUT inlier_px outside (_outermost's fit; rays, peaks: its
     support's rays and their edge candidates); that circle with its support when better supported
-    than the fit, else the fit itself. Only for the sphere, after every decision, as _tangent."""
+    than the fit, else the fit itself. For the sphere after every decision, and in _rescue, as
+    _tangent."""
     if not fit[3] < WIDE_BELOW:
         return fit
     cx, cy, r = _outermost(rays, peaks, dirs, fit, p, WIDE_OUT)
@@ -1333,7 +1336,7 @@ def _find_sphere_v2(frame, p, camera=None):
         # and the first fit too (_grow_first)
         _grow_first(frame, dirs, fits, ib, p)
         # a best fit still below min_support (the frame would be refused) tried from tangent
-        # circles too, kept only as a lit sphere (_rescue)
+        # circles too, and through a wider band, kept only as a lit sphere (_rescue)
         fits[ib] = _rescue(frame, dirs, fits[ib], p)
     found = [f for f in fits if f[3] >= p["min_support"] and _sized(f[2], rmin, rmax)]
     if not found:

@@ -1709,7 +1709,8 @@ void grown(const Frame &f, const std::vector<double> &dirs, const pp_params *p, 
 // it: preprocess.py _tangent_tries), then the support; the best supported of
 // the fit and these (the fit on ties, then the first) replaces it; again from
 // the new circle while one replaced it and it is still below (1 +
-// min_support) / 2, at most grow_rounds tries. Only for the sphere, after every decision.
+// min_support) / 2, at most grow_rounds tries. For the sphere, after every decision, and in
+// rescue, on a refused frame's best fit.
 // *rays holds the support rays of *fit, and of the kept circle after;
 // *spare is scratch.
 void tangent(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
@@ -1848,7 +1849,8 @@ constexpr double wide_out = 3.0;
 // outermost edges to wide_out inlier_px outside it (preprocess.py _wide): near
 // the limb a texture band's edge runs along the rim a few pixels inside it,
 // and the fit can settle on it along one arc. That circle replaces the fit
-// when better supported. *rays holds the support rays of *fit, and of the kept
+// when better supported. For the sphere, after every decision, and in rescue.
+// *rays holds the support rays of *fit, and of the kept
 // circle after; *spare is scratch.
 void wide(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
           Rays *rays, Rays *spare)
@@ -2329,7 +2331,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         // and the first fit too
         grow_first(f, dirs, p, all, bank, ib);
         // a best fit still below min_support (the frame would be refused) tried from tangent
-        // circles too, kept only as a lit sphere
+        // circles too, and through a wider band, kept only as a lit sphere
         rescue(f, dirs, p, &all[ib], &bank[ib], &bank[all.size()]);
     }
     // the well supported fits of a radius in range: their indexes into all

@@ -3,13 +3,13 @@ tangent to it on its supported arc, and keeps the circle reached only when it re
 and is shaded as a lit sphere (training/preprocess.py _rescue, docs/interfaces.md step 5). Two
 `edge` frames of the independent ray-caster (bench/raycast), each sphere cut a few per cent by the
 frame edge with a dark limb over much of the rest of its rim, were refused as "no sphere found in
-frame": frame 97 of seed 406 and frame 81 of seed 410; now both are answered within 0.5 px and
-0.5 % of the truth. When the tangent circles do not reach min_support, the circle they reached
-is refitted through the outermost edges of a wider band, as the sphere is (_wide): frame 97 of
-the `rig` family, seed 423 (a dark limb over a grey-blue gradient), was refused so and is now
-answered within the limits. A `refuse` frame without a sphere (frame 16 of seed 413, clutter) whose best
-fit the tangent circles take to min_support on a clutter disk stays refused by the shading test.
-The C runtime gives the same circles and errors as Python."""
+frame": frame 97 of seed 406 and frame 81 of seed 410; now both are answered within 0.5 px and 0.5 %
+of the truth. When the tangent circles do not reach min_support, the circle they reached is refitted
+through the outermost edges of a wider band, as the sphere is (_wide): frame 97 of the `rig` family,
+seed 423 (a dark limb over a grey-blue gradient), was refused so and is now answered within the
+limits. A `refuse` frame without a sphere (frame 16 of seed 413, clutter) whose best fit the tangent
+circles take to min_support on a clutter disk stays refused by the shading test. The C runtime gives
+the same circles and errors as Python."""
 import json
 import subprocess
 
