@@ -904,8 +904,7 @@ def _rescue(img, dirs, fit, p):
     t = _tangent(img, dirs, fit, p)
     if not t[3] >= p["min_support"]:
         # and refitted through the outermost edges of a wider band, as the sphere is (_wide)
-        rays = _ray_scores(img, dirs, t[0], t[1], t[2], p["support_flank_px"])
-        t = _wide(img, dirs, t, rays, _peaks(rays[0], rays[1], p["ray_edge_min"]), p)
+        t = _wide(img, dirs, t, *_refit_rays(img, dirs, t, p), p)
         if not t[3] >= p["min_support"]:
             return fit
     s = _limb_shading(img, dirs, t[0], t[1], t[2], p)
@@ -1138,6 +1137,13 @@ def _tangent(img, dirs, fit, p):
             break
         best, sup = cur, cur_sup
     return best
+
+
+def _refit_rays(img, dirs, c, p):
+    """The rays the refits (_outermost, _rim) read for circle c: its support's rays (_ray_scores
+    from its centre, +-support_flank_px) and their edge candidates (_peaks at ray_edge_min)."""
+    rays = _ray_scores(img, dirs, c[0], c[1], c[2], p["support_flank_px"])
+    return rays, _peaks(rays[0], rays[1], p["ray_edge_min"])
 
 
 def _wide(img, dirs, fit, rays, peaks, p):
@@ -1378,14 +1384,12 @@ def _find_sphere_v2(frame, p, camera=None):
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)
     # the sphere's circle from its support's rays (the C++ keeps them from computing the support)
-    rays = _ray_scores(frame, dirs, a[0], a[1], a[2], p["support_flank_px"])
-    peaks = _peaks(rays[0], rays[1], p["ray_edge_min"])  # the edge candidates of both steps
+    rays, peaks = _refit_rays(frame, dirs, a, p)  # the edge candidates of both steps
     # a weakly supported sphere refitted through the outermost edges of a wider band (WIDE_OUT)
     wider = _wide(frame, dirs, a, rays, peaks, p)
     if wider is not a:
         a = wider
-        rays = _ray_scores(frame, dirs, a[0], a[1], a[2], p["support_flank_px"])
-        peaks = _peaks(rays[0], rays[1], p["ray_edge_min"])
+        rays, peaks = _refit_rays(frame, dirs, a, p)
     return _rim(rays, peaks, dirs, a, _outermost(rays, peaks, dirs, a, p), p)
 
 

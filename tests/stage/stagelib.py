@@ -226,13 +226,17 @@ class Stage:
                 raise StageError(f"no {pattern!r} in {timeout}s; received {self.rx[-200:]!r}")
             self.pump(min(left, 0.1))
 
-    def drain(self, quiet=0.2):
-        """Throw away whatever arrives until the line is quiet."""
+    def pump_until_quiet(self, quiet=0.2):
+        """Read into rx until nothing has come for `quiet` s."""
         while True:
             before = len(self.rx)
             self.pump(quiet)
             if len(self.rx) == before:
                 break
+
+    def drain(self, quiet=0.2):
+        """Throw away whatever arrives until the line is quiet."""
+        self.pump_until_quiet(quiet)
         lines = self.rx.decode("latin-1").splitlines()
         self.log.extend(lines)
         self.rx = b""
@@ -280,11 +284,7 @@ class Stage:
         status reports that came: answers to '?' sent before (a streaming
         sender's polls), which the next query would take for its own. Every
         other line is kept."""
-        while True:
-            before = len(self.rx)
-            self.pump(quiet)
-            if len(self.rx) == before:
-                break
+        self.pump_until_quiet(quiet)
         head, sep, tail = self.rx.rpartition(b"\n")
         if sep:
             kept = [line for line in head.split(b"\n") if not line.startswith(b"<")]

@@ -320,14 +320,16 @@ def stream_lines(st, lines, poll_period=0.1, timeout=300):
     128-byte receive buffer full, never overfull, while a '?' status query
     goes out every poll_period seconds, one at a time: the next only after
     the report (two queries the firmware has not yet answered merge into one
-    report, as in GRBL). Returns (oks, errors, reports, polls)."""
+    report, as in GRBL). It returns after the last query's report too, so that
+    the next reader of the line neither takes nor drops it. Returns (oks,
+    errors, reports, polls)."""
     pending = []            # lengths of lines sent and not yet acknowledged
     sent = oks = polls = 0
     errors, reports = [], []
     poll_outstanding = False
     next_poll = time.monotonic() + poll_period
     t_end = time.monotonic() + timeout
-    while oks + len(errors) < len(lines):
+    while oks + len(errors) < len(lines) or poll_outstanding:
         assert time.monotonic() < t_end, f"streaming stalled at {oks} ok of {len(lines)}"
         while sent < len(lines) and sum(pending) + len(lines[sent]) + 1 <= RX_BUFFER_SIZE - 1:
             data = lines[sent] + "\n"
@@ -353,17 +355,6 @@ def stream_lines(st, lines, poll_period=0.1, timeout=300):
                 poll_outstanding = False
             elif line.strip():
                 errors.append((oks + len(errors), line))   # ALARM, unexpected text
-    # the last query's report too, before anyone else reads the line and takes it
-    while poll_outstanding:
-        assert time.monotonic() < t_end, "no report for the last status query"
-        st.pump(0.05)
-        while b"\n" in st.rx:
-            line = st.readline(1)
-            if line.startswith("<"):
-                reports.append(parse_status(line))
-                poll_outstanding = False
-            elif line.strip():
-                errors.append((oks + len(errors), line))
     return oks, errors, reports, polls
 
 
