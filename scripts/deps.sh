@@ -30,10 +30,28 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # Reinstall only when requirements.txt or pyproject.toml changed since the last install.
 stamp=.venv/.spherepose-installed
+NEED_GB=8  # the install peaks at 7.4 GB (measured), then build and tests add about 0.7
 if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "deps: installing Python packages from requirements.txt (first time: several GB, mostly PyTorch)"
-  .venv/bin/pip install -q --disable-pip-version-check -r requirements.txt
-  .venv/bin/pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
+  pip_install() { .venv/bin/pip install -q --disable-pip-version-check --no-cache-dir "$@"; }
+  # A fresh install holds about 7.4 GB at its peak (scripts/pip_steps.py); say so
+  # before starting rather than let pip stop half-way on a full disk.
+  free_kb=$(df -Pk .venv | awk 'NR == 2 { print $4 }')
+  if [ ! -f "$stamp" ] && [ "$free_kb" -lt $((NEED_GB * 1024 * 1024)) ]; then
+    echo "deps: $(pwd)/.venv needs about $NEED_GB GB free for its first install; the disk has" \
+      "$((free_kb / 1024 / 1024)) GB. Free some space and run it again." >&2
+    exit 1
+  fi
+  # Resolve once, then install the plan in steps: one per large wheel, so that
+  # only one large download sits on disk at a time. No wheel cache either.
+  plan=$(mktemp)
+  trap 'rm -f "$plan"' EXIT
+  pip_install --dry-run --report "$plan" -r requirements.txt
+  .venv/bin/python scripts/pip_steps.py "$plan" | while read -r -a pins; do
+    pip_install --no-deps "${pins[@]}"
+  done
+  broken=$(.venv/bin/pip check --disable-pip-version-check) || { echo "deps: $broken" >&2; exit 1; }
+  pip_install --no-deps --no-build-isolation -e .
   touch "$stamp"
 fi
 
