@@ -911,6 +911,31 @@ def _rescue(img, dirs, fit, p):
     return t if s is not None and s >= LIMB_MIN else fit
 
 
+def _retry_rest(img, dirs, fits, ib, p, rmin, rmax):
+    """When the best supported fit (index ib) is still below min_support after its tries and
+    _rescue (the frame would be refused), every other fit of the sphere's size supported by at
+    least SECOND_RETRY is tried as the best was (_grown from larger and smaller circles until
+    (1 + min_support) / 2, then _rescue), in place in fits; the circle reached replaces the fit
+    only when it reaches min_support and its inside is shaded as a lit sphere's (_limb_shading at
+    least LIMB_MIN, as in _rescue). A sphere whose limb is dark over a dark backdrop can give its
+    strongest coarse peak a fit on the bands inside the limb (a circle several pixels small),
+    and a weaker peak a fit through the bands and part of the rim that is a few rays better
+    supported: only that one was tried again, and the frame refused (rig-unseen s432
+    18.762_17.908_-4.206: the sphere's fit 0.336, the inner circle's 0.344; the sphere's grown
+    0.805, 0.4 px off centre)."""
+    if fits[ib][3] >= p["min_support"]:
+        return
+    decisive = _decisive_support(p)
+    for i, f in enumerate(fits):
+        if i == ib or not SECOND_RETRY <= f[3] < p["min_support"] or not _sized(f[2], rmin, rmax):
+            continue
+        g = _rescue(img, dirs, _grown(img, dirs, f, p, True, decisive), p)
+        if g[3] >= p["min_support"]:
+            s = _limb_shading(img, dirs, g[0], g[1], g[2], p)
+            if s is not None and s >= LIMB_MIN:
+                fits[i] = g
+
+
 def _outermost(rays, peaks, dirs, fit, p, out=2.0):
     """The sphere refitted through the outermost edges near it: on an arc where the limb and the
     backdrop have nearly the same colour, the rays find only a texture band or the limb's shading
@@ -1344,6 +1369,8 @@ def _find_sphere_v2(frame, p, camera=None):
         # a best fit still below min_support (the frame would be refused) tried from tangent
         # circles too, and through a wider band, kept only as a lit sphere (_rescue)
         fits[ib] = _rescue(frame, dirs, fits[ib], p)
+        # and when it is still below, every other fit tried the same way (_retry_rest)
+        _retry_rest(frame, dirs, fits, ib, p, rmin, rmax)
     found = [f for f in fits if f[3] >= p["min_support"] and _sized(f[2], rmin, rmax)]
     if not found:
         raise NoSphere(_no_sphere_message(frame, dirs, fits, p, rmin, rmax))

@@ -2152,6 +2152,33 @@ bool sized(double r, double rmin, double rmax)
     return rmin * 0.9 <= r && r <= rmax * 1.1;
 }
 
+// When the best supported fit (all[ib]) is still below min_support after its tries and rescue
+// (the frame would be refused), every other fit of the sphere's size supported by at least
+// second_retry tried as the best was (grown from larger and smaller circles until
+// decisive_support, then rescue), in place in all; the circle reached replaces the fit only
+// when it reaches min_support and its shading is at least limb_min (preprocess.py _retry_rest:
+// the same, and its measured reason). bank as grown's; a slot whose fit was not replaced may
+// hold another circle's rays after, unused: that fit stays below min_support.
+void retry_rest(const Frame &f, const std::vector<double> &dirs, const pp_params *p,
+                std::vector<Found> &all, std::vector<Rays> &bank, size_t ib, double rmin,
+                double rmax)
+{
+    if (all[ib].support >= p->min_support) return;
+    const double decisive = decisive_support(p);
+    for (size_t i = 0; i < all.size(); i++) {
+        if (i == ib || !(second_retry <= all[i].support && all[i].support < p->min_support) ||
+            !sized(all[i].r, rmin, rmax))
+            continue;
+        Found g = all[i];
+        grown(f, dirs, p, &g, bank, i, all.size(), true, decisive);
+        rescue(f, dirs, p, &g, &bank[i], &bank[all.size()]);
+        double sh;
+        if (g.support >= p->min_support && limb_shading(f, dirs, g.cx, g.cy, g.r, p, &sh) &&
+            sh >= limb_min)
+            all[i] = g;
+    }
+}
+
 // The error when no circle is the sphere (preprocess.py _no_sphere_message):
 // the cut sphere's, of the best supported fit (first on ties) of a radius in
 // range with more than max_cut of its rim outside the frame, at least half
@@ -2333,6 +2360,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         // a best fit still below min_support (the frame would be refused) tried from tangent
         // circles too, and through a wider band, kept only as a lit sphere
         rescue(f, dirs, p, &all[ib], &bank[ib], &bank[all.size()]);
+        // and when it is still below, every other fit tried the same way
+        retry_rest(f, dirs, p, all, bank, ib, rmin, rmax);
     }
     // the well supported fits of a radius in range: their indexes into all
     std::vector<size_t> fits;

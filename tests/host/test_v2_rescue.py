@@ -7,7 +7,10 @@ frame": frame 97 of seed 406 and frame 81 of seed 410; now both are answered wit
 of the truth. When the tangent circles do not reach min_support, the circle they reached is refitted
 through the outermost edges of a wider band, as the sphere is (_wide): frame 97 of the `rig` family,
 seed 423 (a dark limb over a grey-blue gradient), was refused so and is now answered within the
-limits. A `refuse` frame without a sphere (frame 16 of seed 413, clutter) whose best fit the tangent
+limits. When the best fit stays below min_support, every other fit is tried the same way
+(_retry_rest): frame 67 of the `rig-unseen` family, seed 432 (a dark limb over a black backdrop,
+the sphere's own fit a few rays below an inner circle's), was refused so and is now answered within
+the limits. A `refuse` frame without a sphere (frame 16 of seed 413, clutter) whose best fit the tangent
 circles take to min_support on a clutter disk stays refused by the shading test. The C runtime gives
 the same circles and errors as Python."""
 import json
@@ -23,6 +26,7 @@ from v2_raycast_cases import (CAMERA, MODEL, assert_same_circles_in_c, assert_wi
 CUT_A_LITTLE = [(("edge", 97, "29.959_-10.487_-24.61.png"), 406),
                 (("edge", 81, "10.285_-27.972_10.041.png"), 410)]
 WIDE = [(("rig", 97, "6.002_0.21_8.019.png"), 423)]
+OTHER_FIT = [(("rig-unseen", 67, "18.762_17.908_-4.206.png"), 432)]
 NO_SPHERE = [(("refuse", 16, "-21.192_27.417_-14.012.png"), 413)]
 
 
@@ -30,7 +34,7 @@ NO_SPHERE = [(("refuse", 16, "-21.192_27.417_-14.012.png"), 413)]
 def frames(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rescue")
     return (render_seeded(folder, CUT_A_LITTLE), render_seeded(folder, NO_SPHERE),
-            render_seeded(folder, WIDE))
+            render_seeded(folder, WIDE), render_seeded(folder, OTHER_FIT))
 
 
 def test_rescued(frames, monkeypatch):
@@ -52,6 +56,16 @@ def test_rescued_through_a_wider_band(frames, monkeypatch):
         pp.find_sphere(imgs[0], p, CAMERA)
 
 
+def test_other_fits_retried(frames, monkeypatch):
+    p = params()
+    imgs = assert_within_limits(frames[3], p)
+    # without the other fits' tries when the best stays below min_support: refused (what this
+    # guards)
+    monkeypatch.setattr(pp, "_retry_rest", lambda img, dirs, fits, ib, p, rmin, rmax: None)
+    with pytest.raises(pp.NoSphere, match="no sphere found"):
+        pp.find_sphere(imgs[0], p, CAMERA)
+
+
 def test_no_sphere_stays_refused(frames, monkeypatch):
     p = params()
     img = cv2.imread(str(frames[1][0][0]), cv2.IMREAD_COLOR)
@@ -63,7 +77,7 @@ def test_no_sphere_stays_refused(frames, monkeypatch):
 
 
 def test_same_circles_and_error_in_c(frames, tmp_path, poseinfer, timeout_scale):
-    assert_same_circles_in_c(poseinfer, [path for path, _ in frames[0] + frames[2]], tmp_path,
+    assert_same_circles_in_c(poseinfer, [path for path, _ in frames[0] + frames[2] + frames[3]], tmp_path,
                              timeout_scale)
     cam = tmp_path / "camera.json"
     cam.write_text(json.dumps(CAMERA))
