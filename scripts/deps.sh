@@ -30,16 +30,20 @@ if [ ! -x .venv/bin/python ]; then
 fi
 # Reinstall only when requirements.txt or pyproject.toml changed since the last install.
 stamp=.venv/.spherepose-installed
-NEED_GB=8  # the install peaks at 7.4 GB (measured), then build and tests add about 0.7
+NEED_GB=8  # the install peaks at 7.4 GB (measured), then build and tests add about 0.5
 if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "deps: installing Python packages from requirements.txt (first time: several GB, mostly PyTorch)"
   pip_install() { .venv/bin/pip install -q --disable-pip-version-check --no-cache-dir "$@"; }
   # A fresh install holds about 7.4 GB at its peak (scripts/pip_steps.py); say so
-  # before starting rather than let pip stop half-way on a full disk.
+  # before starting rather than let pip stop half-way on a full disk. What .venv
+  # already holds counts (a rerun after a failed install needs only the rest).
+  # pip downloads into TMPDIR (/tmp by default), here the same disk.
   free_kb=$(df -Pk .venv | awk 'NR == 2 { print $4 }')
-  if [ ! -f "$stamp" ] && [ "$free_kb" -lt $((NEED_GB * 1024 * 1024)) ]; then
-    echo "deps: $(pwd)/.venv needs about $NEED_GB GB free for its first install; the disk has" \
-      "$((free_kb / 1024 / 1024)) GB. Free some space and run it again." >&2
+  held_kb=$(du -sk .venv | cut -f1)
+  if [ ! -f "$stamp" ] && [ $((free_kb + held_kb)) -lt $((NEED_GB * 1024 * 1024)) ]; then
+    echo "deps: $(pwd)/.venv needs about $NEED_GB GB for its first install; it holds" \
+      "$((held_kb / 1024 / 1024)) GB and the disk has $((free_kb / 1024 / 1024)) GB free." \
+      "Free some space and run it again." >&2
     exit 1
   fi
   # Resolve once, then install the plan in steps: one per large wheel, so that
@@ -48,7 +52,7 @@ if [ ! -f "$stamp" ] || [ requirements.txt -nt "$stamp" ] || [ pyproject.toml -n
   trap 'rm -f "$plan"' EXIT
   pip_install --dry-run --report "$plan" -r requirements.txt
   .venv/bin/python scripts/pip_steps.py "$plan" | while read -r -a pins; do
-    pip_install --no-deps "${pins[@]}"
+    pip_install --no-deps "${pins[@]}" </dev/null  # stdin is the plan
   done
   broken=$(.venv/bin/pip check --disable-pip-version-check) || { echo "deps: $broken" >&2; exit 1; }
   pip_install --no-deps --no-build-isolation -e .

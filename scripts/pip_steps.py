@@ -15,6 +15,7 @@ the small packages share the last line.
 usage: pip_steps.py REPORT.json
 """
 import json
+import re
 import sys
 
 # Wheels of hundreds of MB: PyTorch, its compiler and NVIDIA's CUDA libraries.
@@ -23,7 +24,8 @@ LARGE_PREFIXES = ("torch", "triton", "nvidia-", "cuda-")
 
 def steps(report):
     pins = [f"{p['metadata']['name']}=={p['metadata']['version']}" for p in report.get("install", [])]
-    large = [p for p in pins if p.lower().startswith(LARGE_PREFIXES)]
+    # names compared as PEP 503 normalises them (nvidia_cublas is nvidia-cublas)
+    large = [p for p in pins if re.sub(r"[-_.]+", "-", p.lower()).startswith(LARGE_PREFIXES)]
     small = [p for p in pins if p not in large]
     return [[p] for p in large] + ([small] if small else [])
 

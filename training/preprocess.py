@@ -917,12 +917,12 @@ def _retry_rest(img, dirs, fits, ib, p, rmin, rmax):
     least SECOND_RETRY is tried as the best was (_grown from larger and smaller circles until
     (1 + min_support) / 2, then _rescue), in place in fits; the circle reached replaces the fit
     only when it reaches min_support and its inside is shaded as a lit sphere's (_limb_shading at
-    least LIMB_MIN, as in _rescue). A sphere whose limb is dark over a dark backdrop can give its
-    strongest coarse peak a fit on the bands inside the limb (a circle several pixels small),
-    and a weaker peak a fit through the bands and part of the rim that is a few rays better
-    supported: only that one was tried again, and the frame refused (rig-unseen s432
-    18.762_17.908_-4.206: the sphere's fit 0.336, the inner circle's 0.344; the sphere's grown
-    0.805, 0.4 px off centre)."""
+    least LIMB_MIN, as in _rescue). Over a dark limb on a dark backdrop, the strongest coarse
+    peak's fit can lie on the texture bands just inside the limb. A weaker peak's fit, a smaller
+    circle well inside the sphere, can then be a few rays better supported. Only that one was
+    tried again, and the frame was refused (rig-unseen s432 18.762_17.908_-4.206: the first fit
+    0.336, the smaller circle's 0.344; the first fit grown 0.805, the answer 0.03 px off
+    centre)."""
     if fits[ib][3] >= p["min_support"]:
         return
     decisive = _decisive_support(p)

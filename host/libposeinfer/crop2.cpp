@@ -2154,7 +2154,7 @@ bool sized(double r, double rmin, double rmax)
 
 // When the best supported fit (all[ib]) is still below min_support after its tries and rescue
 // (the frame would be refused), every other fit of the sphere's size supported by at least
-// second_retry tried as the best was (grown from larger and smaller circles until
+// second_retry is tried as the best was (grown from larger and smaller circles until
 // decisive_support, then rescue), in place in all; the circle reached replaces the fit only
 // when it reaches min_support and its shading is at least limb_min (preprocess.py _retry_rest:
 // the same, and its measured reason). bank as grown's; a slot whose fit was not replaced may
