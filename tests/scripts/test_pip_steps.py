@@ -34,3 +34,10 @@ def test_unreadable_report_names_the_file(tmp_path):
     out = _run(tmp_path, "{not json")
     assert out.returncode == 1
     assert "report.json" in out.stderr
+
+
+def test_help_and_usage():
+    out = subprocess.run([sys.executable, str(SCRIPT), "--help"], capture_output=True, text=True)
+    assert out.returncode == 0 and "usage: pip_steps.py REPORT.json" in out.stdout
+    out = subprocess.run([sys.executable, str(SCRIPT)], capture_output=True, text=True)
+    assert out.returncode == 2 and "usage" in out.stderr
