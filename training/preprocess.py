@@ -905,10 +905,17 @@ def _rescue(img, dirs, fit, p):
     if not t[3] >= p["min_support"]:
         # and refitted through the outermost edges of a wider band, as the sphere is (_wide)
         t = _wide(img, dirs, t, *_refit_rays(img, dirs, t, p), p)
-        if not t[3] >= p["min_support"]:
-            return fit
-    s = _limb_shading(img, dirs, t[0], t[1], t[2], p)
-    return t if s is not None and s >= LIMB_MIN else fit
+    return t if _lit_sphere(img, dirs, t, p) else fit
+
+
+def _lit_sphere(img, dirs, c, p):
+    """Whether a circle reached by a refused frame's tries may replace its fit (_rescue,
+    _retry_rest): supported by at least min_support and its inside shaded as a lit sphere's
+    (_limb_shading at least LIMB_MIN)."""
+    if not c[3] >= p["min_support"]:
+        return False
+    s = _limb_shading(img, dirs, c[0], c[1], c[2], p)
+    return s is not None and s >= LIMB_MIN
 
 
 def _retry_rest(img, dirs, fits, ib, p, rmin, rmax):
@@ -930,10 +937,8 @@ def _retry_rest(img, dirs, fits, ib, p, rmin, rmax):
         if i == ib or not SECOND_RETRY <= f[3] < p["min_support"] or not _sized(f[2], rmin, rmax):
             continue
         g = _rescue(img, dirs, _grown(img, dirs, f, p, True, decisive), p)
-        if g[3] >= p["min_support"]:
-            s = _limb_shading(img, dirs, g[0], g[1], g[2], p)
-            if s is not None and s >= LIMB_MIN:
-                fits[i] = g
+        if _lit_sphere(img, dirs, g, p):
+            fits[i] = g
 
 
 def _outermost(rays, peaks, dirs, fit, p, out=2.0):

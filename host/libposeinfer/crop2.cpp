@@ -2111,6 +2111,16 @@ void grow_first(const Frame &f, const std::vector<double> &dirs, const pp_params
         grown(f, dirs, p, &all[0], bank, 0, all.size(), f0.support < p->min_support, decisive);
 }
 
+// Whether a circle reached by a refused frame's tries may replace its fit (rescue, retry_rest):
+// supported by at least min_support and its shading at least limb_min (preprocess.py
+// _lit_sphere).
+bool lit_sphere(const Frame &f, const std::vector<double> &dirs, const Found &c, const pp_params *p)
+{
+    double sh;
+    return c.support >= p->min_support && limb_shading(f, dirs, c.cx, c.cy, c.r, p, &sh) &&
+           sh >= limb_min;
+}
+
 // The best supported fit, when its support is from second_retry to below min_support after its
 // tries, tried from the circles tangent to it on its supported arc (tangent), and the circle
 // reached, when still below min_support, refitted through a wider band (wide); the circle
@@ -2125,10 +2135,7 @@ void rescue(const Frame &f, const std::vector<double> &dirs, const pp_params *p,
     Found t = *fit;
     tangent(f, dirs, p, &t, rays, spare);
     if (!(t.support >= p->min_support)) wide(f, dirs, p, &t, rays, spare);
-    double sh;
-    if (t.support >= p->min_support && limb_shading(f, dirs, t.cx, t.cy, t.r, p, &sh) &&
-        sh >= limb_min)
-        *fit = t;
+    if (lit_sphere(f, dirs, t, p)) *fit = t;
 }
 
 void cut_message(double cut, const pp_params *p, char *err, size_t errlen)
@@ -2172,10 +2179,7 @@ void retry_rest(const Frame &f, const std::vector<double> &dirs, const pp_params
         Found g = all[i];
         grown(f, dirs, p, &g, bank, i, all.size(), true, decisive);
         rescue(f, dirs, p, &g, &bank[i], &bank[all.size()]);
-        double sh;
-        if (g.support >= p->min_support && limb_shading(f, dirs, g.cx, g.cy, g.r, p, &sh) &&
-            sh >= limb_min)
-            all[i] = g;
+        if (lit_sphere(f, dirs, g, p)) all[i] = g;
     }
 }
 
