@@ -187,6 +187,21 @@ SECOND_RETRY = 0.25
 WIDE_OUT = 3.0
 WIDE_BELOW = 0.86
 
+# Fine stripes behind the sphere (blinds, a striped backdrop, shelves) give the coarse vote more
+# edges than the sphere's rim, all of one orientation, and their votes add up along the stripes to
+# peaks 25-60 px off the sphere. When the largest of 16 orientation bins (of the coarse edges'
+# gradients, modulo 180 degrees, pi/16 wide and centred on multiples of pi/16, so that stripes
+# along the axes or the diagonals fall in the middle of one) holds at least STRIPE_SHARE of the
+# edges, the edges of every bin with more than STRIPE_DROP times the median bin's count are left
+# out of the coarse stage (the vote and the radius vote; the fine stage sees the frame as it is).
+# The bins are integer tests against ORIENT_SLOPES, 1000 tan((2k + 1) pi / 32) rounded, so that
+# both languages bin alike. A sphere's rim has edges of every orientation, so it keeps 15/16 of
+# them. See docs/bench/localise.md for the measurement. Constants of the algorithm, not model
+# parameters; crop2.cpp has the same (orient_slopes, stripe_share, stripe_drop).
+ORIENT_SLOPES = (98, 303, 535, 821, 1219, 1871, 3297, 10153)
+STRIPE_SHARE = 0.45
+STRIPE_DROP = 3
+
 
 class NoSphere(ValueError):
     """The frame holds nothing that looks like the sphere (or not one sphere, whole)."""
@@ -428,6 +443,31 @@ def _edges(red, edge_min):
     return xi + 1, yi + 1, GX[yi, xi], GY[yi, xi]
 
 
+def _orientation_bins(gx, gy):
+    """Bin 0..15 of each gradient's orientation modulo 180 degrees: bin k holds the angles within
+    pi/32 of k pi/16 (integer tests against ORIENT_SLOPES, bin 8 for a zero gradient)."""
+    flip = (gy < 0) | ((gy == 0) & (gx < 0))
+    a, b = np.where(flip, -gx, gx), np.where(flip, -gy, gy)
+    # b >= 0, the angle in [0, pi); q: how many bin edges in [0, pi/2] atan2(b, |a|) reaches
+    q = np.zeros(a.shape, np.int64)
+    for t in ORIENT_SLOPES:
+        q += 1000 * b >= t * np.abs(a)
+    return np.where(a < 0, (16 - q) % 16, q)
+
+
+def _drop_stripes(x, y, gx, gy):
+    """The coarse edges without those of an orientation that dominates them (see STRIPE_SHARE)."""
+    if x.size == 0:
+        return x, y, gx, gy
+    k = _orientation_bins(gx, gy)
+    cnt = np.bincount(k, minlength=16)
+    if float(cnt.max()) < STRIPE_SHARE * float(x.size):
+        return x, y, gx, gy
+    mid = np.sort(cnt)[7:9].sum()  # twice the median of 16 counts
+    keep = ~(2 * cnt > STRIPE_DROP * mid)[k]
+    return x[keep], y[keep], gx[keep], gy[keep]
+
+
 def _radius_bins(lo, hi, q):
     """Bin of each integer radius lo..hi (reduced pixels): bins about q * radius wide."""
     bins, start, b = [], lo, 0
@@ -449,7 +489,7 @@ def _coarse(frame, p, rmin, rmax):
     hs, ws = red.shape[:2]
     if hs < 8 or ws < 8:
         return [], s
-    x, y, gx, gy = _edges(red, p["edge_min"])
+    x, y, gx, gy = _drop_stripes(*_edges(red, p["edge_min"]))
     if x.size == 0:
         return [], s
     lo = max(1, math.floor(rmin / s))

@@ -446,6 +446,55 @@ void edges(const std::vector<uint8_t> &red, int hs, int ws, double edge_min, Edg
     e.n = ne;
 }
 
+// Fine stripes behind the sphere (preprocess.py ORIENT_SLOPES, STRIPE_SHARE,
+// STRIPE_DROP: the same numbers). Bin 0 .. 15 of a gradient's orientation
+// modulo 180 degrees, bin k within pi/32 of k pi/16: integer tests against
+// 1000 tan((2k + 1) pi / 32), bin 8 for a zero gradient.
+constexpr int orient_slopes[8] = {98, 303, 535, 821, 1219, 1871, 3297, 10153};
+constexpr double stripe_share = 0.45;
+constexpr int stripe_drop = 3;
+
+inline int orientation_bin(int32_t gx, int32_t gy)
+{
+    const bool flip = gy < 0 || (gy == 0 && gx < 0);
+    const int64_t a = flip ? -(int64_t)gx : gx, b = flip ? -(int64_t)gy : gy;
+    // b >= 0, the angle in [0, pi); q: how many bin edges in [0, pi/2]
+    // atan2(b, |a|) reaches
+    int q = 0;
+    for (int t : orient_slopes) q += 1000 * b >= t * (a < 0 ? -a : a);
+    return a < 0 ? (16 - q) % 16 : q;
+}
+
+// e without the edges of an orientation that dominates them: when the
+// largest of the 16 bins holds at least stripe_share of the edges, those of
+// every bin with more than stripe_drop times the median count (kept in
+// order). Stripes outvote the rim, whose edges run every way.
+void drop_stripes(Edges &e)
+{
+    if (e.n == 0) return;
+    thread_local std::vector<uint8_t> bin;
+    bin.resize(e.n);
+    long cnt[16] = {0};
+    for (size_t i = 0; i < e.n; i++) cnt[bin[i] = (uint8_t)orientation_bin(e.gx[i], e.gy[i])]++;
+    long srt[16];
+    std::copy(cnt, cnt + 16, srt);
+    std::sort(srt, srt + 16);
+    if ((double)srt[15] < stripe_share * (double)e.n) return;
+    const long mid = srt[7] + srt[8]; // twice the median
+    bool drop[16];
+    for (int k = 0; k < 16; k++) drop[k] = 2 * cnt[k] > stripe_drop * mid;
+    size_t m = 0;
+    for (size_t i = 0; i < e.n; i++) {
+        if (drop[bin[i]]) continue;
+        e.x[m] = e.x[i];
+        e.y[m] = e.y[i];
+        e.gx[m] = e.gx[i];
+        e.gy[m] = e.gy[i];
+        m++;
+    }
+    e.n = m;
+}
+
 // near[i] = 1 where edge (x[i], y[i]) lies within d2lo <= d^2 <= d2hi of
 // (Xc, Yc), else 0 (in doubles: exact for any frame size). Its own loop so
 // that it vectorises.
@@ -780,6 +829,7 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const size_t pf_len = scratch.last16 ? scratch.a16.acc.size() * sizeof(uint16_t)
                                          : scratch.a32.acc.size() * sizeof(int32_t);
     edges(red, hs, ws, p->edge_min, e, pf, pf_len);
+    drop_stripes(e);
     if (e.n == 0) return out;
     const long lo = std::max(1L, ifloor(rmin / s));
     const long hi = ifloor(rmax / s) + 1;
