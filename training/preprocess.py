@@ -195,8 +195,10 @@ WIDE_BELOW = 0.86
 # edges, the edges of every bin with more than STRIPE_DROP times the median bin's count are left
 # out of the coarse stage (the vote and the radius vote; the fine stage sees the frame as it is).
 # The bins are integer tests against ORIENT_SLOPES, 1000 tan((2k + 1) pi / 32) rounded, so that
-# both languages bin alike. A sphere's rim has edges of every orientation, so it keeps 15/16 of
-# them. See docs/bench/localise.md for the measurement. Constants of the algorithm, not model
+# both languages bin alike. A sphere's rim has edges of every orientation in like numbers, so it
+# keeps most of them (all but a dropped bin's); a frame with 9 or more empty bins (a median of 0)
+# has no rim in it, and every edge of a non-empty bin is dropped: no sphere found. See
+# docs/bench/localise.md for the measurement. Constants of the algorithm, not model
 # parameters; crop2.cpp has the same (orient_slopes, stripe_share, stripe_drop).
 ORIENT_SLOPES = (98, 303, 535, 821, 1219, 1871, 3297, 10153)
 STRIPE_SHARE = 0.45
