@@ -468,7 +468,8 @@ inline int orientation_bin(int32_t gx, int32_t gy)
 // e without the edges of an orientation that dominates them: when the
 // largest of the 16 bins holds at least stripe_share of the edges, those of
 // every bin with more than stripe_drop times the median count (kept in
-// order). Stripes outvote the rim, whose edges run every way.
+// order; with a median of 0, every non-empty bin). Stripes outvote the rim,
+// whose edges run every way.
 void drop_stripes(Edges &e)
 {
     if (e.n == 0) return;
