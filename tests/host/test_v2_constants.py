@@ -3,9 +3,12 @@ module's numeric upper-case names (numbers, or tuples of integers) in training/p
 as file-scope constexpr values (or int arrays) of the same lower-case name in
 host/libposeinfer/crop2.cpp. Each must have its twin, with the same
 value, so that the two implementations stay bit-identical."""
+import math
 import numbers
 import re
 from pathlib import Path
+
+import numpy as np
 
 from training import preprocess as pp
 
@@ -53,10 +56,6 @@ def test_the_known_constants_are_read():
 def test_orientation_slopes_are_the_bin_edges():
     """ORIENT_SLOPES are 1000 tan((2k + 1) pi / 32), rounded: the edges of 16 bins centred on
     multiples of pi/16; away from those edges the bins are atan2's."""
-    import math
-
-    import numpy as np
-
     assert pp.ORIENT_SLOPES == tuple(round(1000 * math.tan((2 * k + 1) * math.pi / 32)) for k in range(8))
     rng = np.random.default_rng(7)
     gx, gy = rng.integers(-2040, 2041, 50000), rng.integers(-2040, 2041, 50000)

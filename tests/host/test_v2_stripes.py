@@ -5,6 +5,7 @@ behind the sphere give more coarse edges than its rim, all one way, and their vo
 stripes behind the sphere: frame 12 of seed 438 was refused as "no sphere found in frame" and is
 now answered within 0.5 px and 0.5 % of the truth; frame 43 of seed 427 was answered 7 px off and
 is now within 1 px. The C runtime bins the orientations alike and gives the same circles."""
+import cv2
 import numpy as np
 import pytest
 
@@ -35,8 +36,6 @@ def test_refused_frame_answered(frames, monkeypatch):
 
 
 def test_far_off_frame_near(frames, monkeypatch):
-    import cv2
-
     p = params()
     (path, truth), = frames[1]
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
