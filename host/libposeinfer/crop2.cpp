@@ -2059,6 +2059,15 @@ constexpr double cut_shade = 1.0;
 // the same value, and its measured reason).
 constexpr double second_retry = 0.25;
 
+// Such a circle still below min_support, with at least this share of
+// support and of beside support, is a second sphere too when it looks like
+// the sphere: shading above 1 at least weak_share of the sphere's, texture
+// within texture_tol of it (preprocess.py SECOND_WEAK, WEAK_SHARE,
+// TEXTURE_TOL: the same values, and their measured reason).
+constexpr double second_weak = 0.33;
+constexpr double weak_share = 0.5;
+constexpr double texture_tol = 1.0;
+
 // How many rays from (cx, cy) keep the support's samples (RayScores within
 // support_flank_px of r) in the frame: both ends inside, as RayScores::ray
 // tests them (preprocess.py _in_frame).
@@ -2143,6 +2152,44 @@ bool second_beside(const Frame &f, const std::vector<double> &dirs, const Found 
                    const pp_params *p, Rays *spare)
 {
     return second(f, dirs, a, b, p) && beside_support(f, dirs, a, b, p, spare) >= p->min_support;
+}
+
+// The median, over circle c's rays that stay in the frame, of the number of
+// colour steps (peaks of at least ray_edge_min) from 0.2 r to 0.8 r from its
+// centre: the printed texture's bands; false with fewer than 8 such rays
+// (preprocess.py _texture_steps).
+bool texture_steps(const Frame &f, const std::vector<double> &dirs, const Found &c,
+                   const pp_params *p, double *steps)
+{
+    const int K = (int)dirs.size() / 2;
+    thread_local RayScores rs;
+    thread_local std::vector<double> n;
+    rs.setup(0.5 * c.r, 0.3 * c.r);
+    n.clear();
+    for (int k = 0; k < K; k++)
+        if (rs.ray(f, c.cx, c.cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1]))
+            n.push_back((double)rs.peaks(p->ray_edge_min));
+    if (n.size() < 8) return false;
+    *steps = median_of(n.data(), n.size());
+    return true;
+}
+
+// Whether circle b, below min_support, is a second sphere beside sphere a by
+// its likeness to it: apart, lit as a is, textured as a is, and its beside
+// support at least second_weak (computed last: it is costly; preprocess.py
+// _weak_second). *spare: scratch.
+bool weak_second(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
+                 const pp_params *p, Rays *spare)
+{
+    double sa, sb, ta, tb;
+    if (!apart(a, b, p)) return false;
+    if (!limb_shading(f, dirs, a.cx, a.cy, a.r, p, &sa) || !(sa >= limb_min)) return false;
+    if (!limb_shading(f, dirs, b.cx, b.cy, b.r, p, &sb) || !(sb - 1.0 >= weak_share * (sa - 1.0)))
+        return false;
+    if (!texture_steps(f, dirs, a, p, &ta) || !texture_steps(f, dirs, b, p, &tb) ||
+        !(std::fabs(ta - tb) <= texture_tol))
+        return false;
+    return beside_support(f, dirs, a, b, p, spare) >= second_weak;
 }
 
 // The first fit (of the strongest coarse peak that gave one) tried again as the best one is
@@ -2478,6 +2525,12 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         grown(f, dirs, p, &g, bank, i, all.size(), true, p->min_support);
         if (g.support >= p->min_support && sized(g.r, rmin, rmax) &&
             second_beside(f, dirs, a, g, p, &bank[all.size()])) {
+            two_spheres(a, g, err, errlen);
+            return -1;
+        }
+        // still weak: a second sphere when it looks like the sphere (second_weak)
+        if (second_weak <= g.support && g.support < p->min_support && sized(g.r, rmin, rmax) &&
+            weak_second(f, dirs, a, g, p, &bank[all.size()])) {
             two_spheres(a, g, err, errlen);
             return -1;
         }
