@@ -1073,18 +1073,20 @@ def _outermost(rays, peaks, dirs, fit, p, out=2.0):
 
 
 def _rim(rays, peaks, dirs, fit, new, p):
-    """The refitted circle `new`'s radius moved to the rim, from its steepest colour step: where
-    the limb darkens towards the rim (shading, under blur and anti-aliasing), the largest step
-    along a ray lies up to a pixel inside the outline, while the step's outer flank stays
-    anchored to it. rays: _ray_scores of the support's rays from the centre of `fit` (the circle
-    before the refit; the same rays and peaks as _outermost's). On each, the step peak nearest the new
-    circle (within inlier_px of where the ray crosses it, at least ray_edge_min, first on ties)
-    gives its outer half-maximum (the first place outwards where the step falls to half the peak
-    sample's); less the frame's edge half-width (the middle one of those half-maxima's distances
-    from their peaks), that is the rim on the ray. The radius moves by the median of the rims'
-    distances from the new circle; the centre stays (a centre fitted through the rims moved some
-    of the training renderer's frames past 0.5 px). Fewer than 8 such rays: the new circle
-    unchanged. Returns (cx, cy, r)."""
+    """The refitted circle `new` moved to the rim, from its steepest colour steps: where the limb
+    darkens towards the rim (shading, under blur and anti-aliasing), the largest step along a ray
+    lies up to a pixel inside the outline, while the step's outer flank stays anchored to it.
+    rays: _ray_scores of the support's rays from the centre of `fit` (the circle before the refit;
+    the same rays and peaks as _outermost's). On each, the step peak nearest the new circle
+    (within inlier_px of where the ray crosses it, at least ray_edge_min, first on ties) gives its
+    outer half-maximum (the first place outwards where the step falls to half the peak sample's);
+    less the frame's edge half-width (the middle one of those half-maxima's distances from their
+    peaks), that is the rim on the ray. The radius moves by the median of the rims' distances
+    from the new circle, and the circle is then refitted through the rims (_through_rims, at the
+    floor of the robust scale: a rim 1.2 px or more off the circle drops out). Where the limb
+    darkens to the backdrop's level on an arc, the steps found there lie inside the rim and the
+    centre fitted through them leans away from that arc; the rims do not (see RIM_NOTE in
+    docs/bench/localise.md). Fewer than 8 rims: the new circle unchanged. Returns (cx, cy, r)."""
     cx, cy = fit[0], fit[1]
     nx, ny, nr = new
     rho, score, bad = rays
@@ -1122,13 +1124,34 @@ def _rim(rays, peaks, dirs, fit, new, p):
     if len(width) < 8:
         return nx, ny, nr
     hw = sorted(width)[(len(width) - 1) // 2]
-    off = []
+    xs, ys, off = [], [], []  # the rims about the new centre, and their distances from the circle
     for k in range(len(dirs)):
         if outer[k] is not None:
             ex = cx + (outer[k] - hw) * dirs[k, 0] - nx
             ey = cy + (outer[k] - hw) * dirs[k, 1] - ny
+            xs.append(ex)
+            ys.append(ey)
             off.append(math.sqrt(ex * ex + ey * ey) - nr)
-    return nx, ny, nr + _median(off)
+    x, y, r = _through_rims(xs, ys, nr + _median(off), p)
+    return nx + x, ny + y, r
+
+
+def _through_rims(xs, ys, r, p):
+    """The circle through the rims (xs, ys) (_rim), from the circle of radius r about their
+    origin: irls_iters rounds of Tukey weights at the floor of the robust scale and the algebraic
+    fit, each from the last; a round with fewer than 8 rims of weight, or whose fit fails, ends it
+    with the circle before. Returns (x, y, r) about the origin."""
+    x, y = 0.0, 0.0
+    for it in range(p["irls_iters"]):
+        res = [math.sqrt((ex - x) * (ex - x) + (ey - y) * (ey - y)) - r for ex, ey in zip(xs, ys)]
+        wts = _tukey_floor_weights(res, p)
+        if sum(1 for v in wts if v > 0.0) < 8:
+            break
+        f = _kasa(xs, ys, wts)
+        if f is None:
+            break
+        x, y, r = f
+    return x, y, r
 
 
 def _row_medians(a):

@@ -1918,15 +1918,17 @@ void wide(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
 
 // The sphere's last step (preprocess.py _outermost, then _rim), from its
 // support's rays: refitted through the outermost edges near it (outermost, to
-// 2 inlier_px outside), then that circle's radius moved to the rim: on each ray
-// the peak nearest where the ray crosses it, its outer half-maximum less the
-// edge half-width, the median of their distances from the circle added to its
-// radius.
+// 2 inlier_px outside), then that circle moved to the rim: on each ray the
+// peak nearest where the ray crosses it, its outer half-maximum less the edge
+// half-width, the median of their distances from the circle added to its
+// radius, and the circle refitted through those rims (preprocess.py _rim: the
+// steps lean inwards where the limb darkens to the backdrop's level, the
+// rims do not).
 void final_circle(const std::vector<double> &dirs, const pp_params *p, const Found &a,
                   const Rays &rays, double *ocx, double *ocy, double *orad)
 {
     const int K = (int)dirs.size() / 2;
-    thread_local std::vector<double> w, outer;
+    thread_local std::vector<double> w, outer, xs, ys, res, wts;
     const int32_t *poff = rays.off.data();
     const double *pp = rays.pos.data();
     double nx, ny, nr;
@@ -1963,14 +1965,37 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
     if (m < 8) return;
     std::nth_element(w.begin(), w.begin() + (long)((m - 1) / 2), w.end());
     const double hw = w[(m - 1) / 2];
-    w.clear(); // now the rims' distances from the circle, in ray order
+    w.clear();  // now the rims' distances from the circle, in ray order
+    xs.clear(); // and the rims about the new centre
+    ys.clear();
     for (int k = 0; k < K; k++)
         if (!std::isnan(outer[(size_t)k])) {
             const double ex = a.cx + (outer[(size_t)k] - hw) * dirs[2 * (size_t)k] - nx;
             const double ey = a.cy + (outer[(size_t)k] - hw) * dirs[2 * (size_t)k + 1] - ny;
+            xs.push_back(ex);
+            ys.push_back(ey);
             w.push_back(std::sqrt(ex * ex + ey * ey) - nr);
         }
-    *orad = nr + median_of(w.data(), w.size());
+    // the circle refitted through the rims: irls_iters rounds at the floor of
+    // the robust scale (a rim 1.2 px or more off drops out), each from the
+    // last; a round with fewer than 8 rims of weight or a failed fit ends it
+    double x = 0.0, y = 0.0, r = nr + median_of(w.data(), w.size());
+    res.resize(xs.size());
+    wts.resize(xs.size());
+    for (int it = 0; it < p->irls_iters; it++) {
+        residuals(xs.data(), ys.data(), xs.size(), x, y, r, res.data());
+        tukey_weights(res.data(), res.size(), p->tukey_c * p->sigma_min_px, wts.data());
+        size_t used = 0;
+        for (double v : wts) used += v > 0.0;
+        double fx, fy, fr;
+        if (used < 8 || !kasa(xs, ys, wts, &fx, &fy, &fr)) break;
+        x = fx;
+        y = fy;
+        r = fr;
+    }
+    *ocx = nx + x;
+    *ocy = ny + y;
+    *orad = r;
 }
 
 // How much brighter a circle's inside is than its edge (preprocess.py

@@ -8,13 +8,15 @@ round at the floor scale those rays drop out and both are within 0.5 px and 0.5 
 edge frame within, so the rig frame is the one that guards the floor round by itself, by
 0.04 px). The wider band's refit (_wide) takes the rig frame to 0.13 px, and to 0.26 px without
 the floor round: with every step on, both frames stay within the limits without that round
-(edge 0.36 px), so this test guards it with the tangent tries and _wide off. The C runtime gives
-the same circles as Python."""
+(edge 0.36 px), so this test guards it with the tangent tries and _wide off, and with the circle
+not refitted through the rims (_through_rims, which corrects the same lean: with it both frames
+stay within the limits without the floor round). The C runtime gives the same circles as
+Python."""
 import pytest
 
 from training import preprocess as pp
 from v2_raycast_cases import (assert_off_centre, assert_same_circles_in_c, assert_within_limits, params,
-                              render_seeded)
+                              render_seeded, without_rim_refit)
 
 FRAMES = [(("edge", 15, "6.643_15.297_-26.329.png"), 0), (("rig", 39, "2.261_0.299_9.715.png"), 121)]
 
@@ -35,6 +37,7 @@ def test_last_round_at_the_floor_scale(frames, monkeypatch):
     # supported frames too)
     monkeypatch.setattr(pp, "_tangent", lambda img, dirs, fit, p: fit)
     monkeypatch.setattr(pp, "_wide", lambda img, dirs, fit, rays, peaks, p: fit)
+    without_rim_refit(monkeypatch)
     assert_off_centre(imgs, frames, p, 0.5)
 
 

@@ -69,6 +69,14 @@ def assert_off_centre(imgs, frames, p, px):
         assert ec > px, (path.name, ec)
 
 
+def without_rim_refit(monkeypatch):
+    """The sphere's circle not refitted through the rims (_through_rims): its centre stays where
+    the refit through the outermost edges put it and only its radius moves to the rim. That refit
+    corrects the lean of a circle fitted through the steps inside a dark limb, as several earlier
+    steps do; a test of one of those steps switches it off to show what its own step mends."""
+    monkeypatch.setattr(pp, "_through_rims", lambda xs, ys, r, p: (0.0, 0.0, r))
+
+
 def circle_error(found, truth):
     """(centre error in px, radius error in %)."""
     return math.hypot(found[0] - truth[0], found[1] - truth[1]), abs(found[2] / truth[2] - 1) * 100
