@@ -1085,8 +1085,9 @@ def _rim(rays, peaks, dirs, fit, new, p):
     from the new circle, and the circle is then refitted through the rims (_through_rims, at the
     floor of the robust scale: a rim 1.2 px or more off the circle drops out). Where the limb
     darkens to the backdrop's level on an arc, the steps found there lie inside the rim and the
-    centre fitted through them leans away from that arc; the rims do not (see RIM_NOTE in
-    docs/bench/localise.md). Fewer than 8 rims: the new circle unchanged. Returns (cx, cy, r)."""
+    centre fitted through them leans away from that arc; the rims do not (measured in
+    docs/bench/localise.md, "The circle refitted through the rims"). Fewer than 8 rims: the new
+    circle unchanged. Returns (cx, cy, r)."""
     cx, cy = fit[0], fit[1]
     nx, ny, nr = new
     rho, score, bad = rays

@@ -1,6 +1,6 @@
 """sphere-crop-v2's last step (training/preprocess.py _outermost, then _rim): the sphere is
-refitted through the outermost edges near it, and its radius moved from the steepest colour step
-to the rim, both from the rays of its support. Four frames of the independent ray-caster
+refitted through the outermost edges near it, then moved from the steepest colour steps to the
+rims and refitted through them, all from the rays of its support. Four frames of the independent ray-caster
 (bench/raycast, seed 0, as in build/realscene-final): `rig` frame 84 (a headlight-lit limb on a
 dark backdrop: the steepest step lies inside the rim) was fitted 0.69 % small; `shifts` frame 83
 (weakly supported: an arc of the rim without a colour step, a band inside it) 0.83 px off;

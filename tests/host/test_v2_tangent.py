@@ -4,7 +4,7 @@ of the independent ray-caster (bench/raycast) where the limb darkens to the back
 one side and the fine passes settle on a circle through that arc's inner steps and the rim on the
 lit side: `edge` frame 10 of seed 135 was 3.84 px off centre (support 0.52), `rig` frame 28 of
 seed 121 1.60 px (0.62); the larger circles from the same centre (_grow) do not leave it. From
-the tangent circles both are within 0.5 px and 0.5 % of the truth (0.05 and 0.28 px), and the C
+the tangent circles both are within 0.5 px and 0.5 % of the truth (0.03 and 0.09 px), and the C
 runtime gives the same circles as Python. A third, `rig-unseen` frame 25 of seed 401, has its limb
 dark against a dark backdrop over a third of the rim: the passes from the tangent circles slide back
 to the texture bands inside it, and only the tangent circle itself (_tangent_tries) reaches the rim

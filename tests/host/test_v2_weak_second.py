@@ -89,9 +89,21 @@ def test_texture_steps_counts_the_bands_inside(edges):
     p = pp.params()
     dirs = pp._ray_dirs(p["rays"])
     want = sum(1 for e in edges if 0.2 < e < 0.8)
-    assert pp._texture_steps(img, dirs, (199.5, 199.5, 120.0), p) == want
-    # a circle mostly outside the frame: too few rays to tell
-    assert pp._texture_steps(img, dirs, (-100.0, 199.5, 120.0), p) is None
+    assert pp._texture_steps(img, dirs, (200.0, 200.0, 120.0), p) == want
+
+
+def test_texture_steps_needs_8_rays_in_the_frame():
+    """A circle mostly outside the frame (its centre beyond the left edge, near the bottom, so
+    that both edges cut its rays): with 7 rays whose samples all lie in it, too few to tell
+    (None); with 8, a count."""
+    img = _rings([0.5])
+    p = pp.params()
+    dirs = pp._ray_dirs(p["rays"])
+    for y, n in ((386.0, 7), (382.0, 8)):
+        bad = pp._ray_scores(img, dirs, -23.0, y, 60.0, 36.0)[2]  # the samples _texture_steps takes
+        assert int((~bad).sum()) == n, (y, int((~bad).sum()))
+        steps = pp._texture_steps(img, dirs, (-23.0, y, 120.0), p)
+        assert (steps is None) == (n < 8), (n, steps)
 
 
 def test_same_answers_in_c(frames, tmp_path, poseinfer, timeout_scale):
