@@ -180,10 +180,10 @@ SECOND_RETRY = 0.25
 # circles that reach SECOND_RETRY's loop with 0.30-0.42 in 13 000 development frames (seeds
 # 418-429 and 432-450, two-edge 500-502, rig-photo 501-503): the 7 second spheres among them (6
 # `two-edge` frames and that one) have 0.352-0.414 of beside support, shading 0.64-1.42 of the
-# sphere's and texture within 1 of it. The 12 clutter circles with 0.33 or more of beside support beside a
-# sphere that must be answered (11 frames) have texture 2-27.5 off the sphere's (10) or shading
-# 0.33 and 0.37 of it (2), and the nearest clutter circle that passes both tests has 0.281 (a rig
-# frame of seed 443). Of 261 well supported second spheres (seeds 418-441) 232 have texture
+# sphere's and texture within 1 of it. The 12 clutter circles with 0.33 or more of beside
+# support beside a sphere that must be answered (11 frames) have texture 2-27.5 off the sphere's
+# (10) or shading 0.33 and 0.37 of it (2), and the nearest clutter circle that passes both tests
+# has 0.281 (a rig frame of seed 443). Of 261 well supported second spheres (seeds 418-441) 232 have texture
 # within 1 of the sphere's; of 33 clutter circles 3. The same frames are refused, and no other,
 # with SECOND_WEAK 0.30-0.33, WEAK_SHARE 0.4-0.5 or TEXTURE_TOL 1-1.5. Constants of the
 # algorithm, not model parameters; crop2.cpp has the same (second_weak, weak_share, texture_tol).

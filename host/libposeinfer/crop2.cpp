@@ -2565,7 +2565,7 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     tangent(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
     // and refitted through the outermost edges of a wider band
     wide(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
-    // refitted through the outermost edges near it, then moved to the rims and refitted through them
+    // refitted through the outermost edges near it, then moved to the rims and through them
     final_circle(dirs, p, sp, bank[fits[(size_t)ia]], ocx, ocy, orad);
     return 0;
 }

@@ -1,14 +1,14 @@
-"""sphere-crop-v2's last step (training/preprocess.py _outermost, then _rim): the sphere is
-refitted through the outermost edges near it, then moved from the steepest colour steps to the
-rims and refitted through them, all from the rays of its support. Four frames of the independent ray-caster
+"""sphere-crop-v2's last step (training/preprocess.py _outermost, then _rim): the sphere is refitted
+through the outermost edges near it, then moved from the steepest colour steps to the rims and
+refitted through them, all from the rays of its support. Four frames of the independent ray-caster
 (bench/raycast, seed 0, as in build/realscene-final): `rig` frame 84 (a headlight-lit limb on a
 dark backdrop: the steepest step lies inside the rim) was fitted 0.69 % small; `shifts` frame 83
-(weakly supported: an arc of the rim without a colour step, a band inside it) 0.83 px off;
-`edge` frame 78 (the same on a well supported sphere, before the refit ran on every sphere)
-0.96 px off; `rig` frame 46 (bands and a dark limb inside the rim on about a third of the rays)
-0.72 px off with the outermost edges taken once (about the first circle only), 0.49 px with them
-taken again after half the fit's rounds. All four are now within 0.5 px and 0.5 % of the truth,
-and the C runtime gives the same circles as Python."""
+(weakly supported: an arc of the rim without a colour step, a band inside it) 0.83 px off; `edge`
+frame 78 (the same on a well supported sphere, before the refit ran on every sphere) 0.96 px off;
+`rig` frame 46 (bands and a dark limb inside the rim on about a third of the rays) 0.72 px off with
+the outermost edges taken once (about the first circle only), 0.49 px with them taken again after
+half the fit's rounds. All four are now within 0.5 px and 0.5 % of the truth, and the C runtime
+gives the same circles as Python."""
 import pytest
 
 from training import preprocess as pp
