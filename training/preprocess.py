@@ -183,10 +183,11 @@ SECOND_RETRY = 0.25
 # sphere's and texture within 1 of it. The 12 clutter circles with 0.33 or more of beside
 # support beside a sphere that must be answered (11 frames) have texture 2-27.5 off the sphere's
 # (10) or shading 0.33 and 0.37 of it (2), and the nearest clutter circle that passes both tests
-# has 0.281 (a rig frame of seed 443). Of 261 well supported second spheres (seeds 418-441) 232 have texture
-# within 1 of the sphere's; of 33 clutter circles 3. The same frames are refused, and no other,
-# with SECOND_WEAK 0.30-0.33, WEAK_SHARE 0.4-0.5 or TEXTURE_TOL 1-1.5. Constants of the
-# algorithm, not model parameters; crop2.cpp has the same (second_weak, weak_share, texture_tol).
+# has 0.281 (a rig frame of seed 443). Of 261 well supported second spheres (seeds 418-441) 232
+# have texture within 1 of the sphere's; of 33 clutter circles 3. The same frames are refused,
+# and no other, with SECOND_WEAK 0.30-0.33, WEAK_SHARE 0.4-0.5 or TEXTURE_TOL 1-1.5. Constants of
+# the algorithm, not model parameters; crop2.cpp has the same (second_weak, weak_share,
+# texture_tol).
 SECOND_WEAK = 0.33
 WEAK_SHARE = 0.5
 TEXTURE_TOL = 1.0
@@ -1413,11 +1414,10 @@ def _second_beside(img, dirs, a, b, p):
 
 def _texture_steps(img, dirs, c, p):
     """The median, over circle c's rays whose samples all lie in the frame, of the number of colour
-    steps (_peaks of _ray_scores, at least ray_edge_min) from 0.2 r to 0.8 r from its centre: the
-    printed texture's bands; None with fewer than 8 such rays."""
-    rho, score, bad = _ray_scores(img, dirs, c[0], c[1], 0.5 * c[2], 0.3 * c[2])
-    peak = _peaks(rho, score, p["ray_edge_min"])[0]
-    n = [float(peak[k].sum()) for k in range(len(dirs)) if not bad[k]]
+    steps (_ray_edges' candidates) from 0.2 r to 0.8 r from its centre: the printed texture's
+    bands; None with fewer than 8 such rays."""
+    edges = _ray_edges(img, dirs, c[0], c[1], 0.5 * c[2], 0.3 * c[2], p)
+    n = [float(len(e)) for e in edges if e is not None]
     return _median(n) if len(n) >= 8 else None
 
 

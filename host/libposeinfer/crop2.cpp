@@ -2180,20 +2180,19 @@ bool second_beside(const Frame &f, const std::vector<double> &dirs, const Found 
 }
 
 // The median, over circle c's rays that stay in the frame, of the number of
-// colour steps (peaks of at least ray_edge_min) from 0.2 r to 0.8 r from its
+// colour steps (ray_edges' candidates) from 0.2 r to 0.8 r from its
 // centre: the printed texture's bands; false with fewer than 8 such rays
 // (preprocess.py _texture_steps).
 bool texture_steps(const Frame &f, const std::vector<double> &dirs, const Found &c,
                    const pp_params *p, double *steps)
 {
     const int K = (int)dirs.size() / 2;
-    thread_local RayScores rs;
+    thread_local RayEdges re;
     thread_local std::vector<double> n;
-    rs.setup(0.5 * c.r, 0.3 * c.r);
+    ray_edges(f, dirs, c.cx, c.cy, 0.5 * c.r, 0.3 * c.r, p->ray_edge_min, 0.0, re);
     n.clear();
     for (int k = 0; k < K; k++)
-        if (rs.ray(f, c.cx, c.cy, dirs[2 * (size_t)k], dirs[2 * (size_t)k + 1]))
-            n.push_back((double)rs.peaks(p->ray_edge_min));
+        if (re.ok[(size_t)k]) n.push_back((double)(re.off[(size_t)k + 1] - re.off[(size_t)k]));
     if (n.size() < 8) return false;
     *steps = median_of(n.data(), n.size());
     return true;
