@@ -195,7 +195,8 @@ TEXTURE_TOL = 1.0
 # The sphere's circle (and a refused frame's best fit in _rescue), when supported below WIDE_BELOW
 # after _tangent, is refitted once more through the outermost edges from 1.5 inlier_px inside it
 # to WIDE_OUT inlier_px outside (the last refit's band reaches 2 inlier_px), and that circle is
-# kept when it is better supported (_wide). Near the limb the sphere's surface is seen edge-on, so
+# kept when it is better supported (_wide; the sphere's now when its rims lie nearer: RIM_NEAR).
+# Near the limb the sphere's surface is seen edge-on, so
 # a texture band's edge there runs along the rim, 2-4 px inside it, often with a larger colour
 # step than the rim's over a dark backdrop; the fit can settle on such a band along one arc (a
 # circle 1-2 px small, off towards the other side) and stay there: the rim lies beyond the last
@@ -209,6 +210,18 @@ TEXTURE_TOL = 1.0
 # parameters; crop2.cpp has the same (wide_out, wide_below).
 WIDE_OUT = 3.0
 WIDE_BELOW = 0.86
+
+# For the sphere itself the wider band's circle is not judged by its support: the last step
+# (_outermost, _rim) runs from both circles, and the one whose rims lie nearer its own circle is
+# kept: more rims within RIM_NEAR inlier_px of it, the fit's on ties (_final_circle). The support
+# counts a ray within inlier_px of a circle, so a circle 1-2 px off the rim along a dark arc can
+# count as many rays as the true one, or more (edge s426 -9.272_9.416_12.572: the fit 0.648 at
+# 1.82 px off centre, the wider band's 0.539 at 0.36 px); the rims tell them apart at half a pixel
+# (58 near against 60). On the 6 900 development frames of the ray-caster (seeds 418-441, two-edge
+# 500-502, rig-photo 501-503) 6 862 -> 6 869 circles within 0.5 px and 0.5 % (9 in, 2 out); with
+# 0.3 inlier_px 6 869, with 1 (the floor scale's cut) 6 868, by the support as before 6 862. A
+# constant of the algorithm, not a model parameter; crop2.cpp has the same (rim_near).
+RIM_NEAR = 0.5
 
 # Fine stripes behind the sphere (blinds, a striped backdrop, shelves) give the coarse vote more
 # edges than the sphere's rim, all of one orientation, and their votes add up along the stripes to
@@ -1088,7 +1101,8 @@ def _rim(rays, peaks, dirs, fit, new, p):
     darkens to the backdrop's level on an arc, the steps found there lie inside the rim and the
     centre fitted through them leans away from that arc; the rims do not (measured in
     docs/bench/localise.md, "The circle refitted through the rims"). Fewer than 8 rims: the new
-    circle unchanged. Returns (cx, cy, r)."""
+    circle unchanged. Returns ((cx, cy, r), near): near, how many rims lie within RIM_NEAR
+    inlier_px of that circle (0 with fewer than 8), judges it against another (_final_circle)."""
     cx, cy = fit[0], fit[1]
     nx, ny, nr = new
     rho, score, bad = rays
@@ -1124,7 +1138,7 @@ def _rim(rays, peaks, dirs, fit, new, p):
         outer[k] = o
         width.append(o - pos[k, best - 1])
     if len(width) < 8:
-        return nx, ny, nr
+        return (nx, ny, nr), 0
     hw = sorted(width)[(len(width) - 1) // 2]
     xs, ys, off = [], [], []  # the rims about the new centre, and their distances from the circle
     for k in range(len(dirs)):
@@ -1135,7 +1149,10 @@ def _rim(rays, peaks, dirs, fit, new, p):
             ys.append(ey)
             off.append(math.sqrt(ex * ex + ey * ey) - nr)
     x, y, r = _through_rims(xs, ys, nr + _median(off), p)
-    return nx + x, ny + y, r
+    tol = RIM_NEAR * p["inlier_px"]
+    near = sum(1 for ex, ey in zip(xs, ys)
+               if abs(math.sqrt((ex - x) * (ex - x) + (ey - y) * (ey - y)) - r) <= tol)
+    return (nx + x, ny + y, r), near
 
 
 def _through_rims(xs, ys, r, p):
@@ -1266,11 +1283,11 @@ def _refit_rays(img, dirs, c, p):
 
 
 def _wide(img, dirs, fit, rays, peaks, p):
-    """The sphere's fit, when supported below WIDE_BELOW, refitted through the outermost edges
-    from 1.5 inlier_px inside it to WIDE_OUT inlier_px outside (_outermost's fit; rays, peaks: its
-    support's rays and their edge candidates); that circle with its support when better supported
-    than the fit, else the fit itself. For the sphere after every decision, and in _rescue, as
-    _tangent."""
+    """A refused frame's best fit (_rescue), when supported below WIDE_BELOW, refitted through the
+    outermost edges from 1.5 inlier_px inside it to WIDE_OUT inlier_px outside (_outermost's fit;
+    rays, peaks: its support's rays and their edge candidates); that circle with its support when
+    better supported than the fit, else the fit itself. The sphere's is judged by its rims
+    instead (_final_circle)."""
     if not fit[3] < WIDE_BELOW:
         return fit
     cx, cy, r = _outermost(rays, peaks, dirs, fit, p, WIDE_OUT)
@@ -1536,14 +1553,32 @@ def _find_sphere_v2(frame, p, camera=None):
             raise NoSphere(_two_spheres(a, g))
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)
-    # the sphere's circle from its support's rays (the C++ keeps them from computing the support)
-    rays, peaks = _refit_rays(frame, dirs, a, p)  # the edge candidates of both steps
-    # a weakly supported sphere refitted through the outermost edges of a wider band (WIDE_OUT)
-    wider = _wide(frame, dirs, a, rays, peaks, p)
-    if wider is not a:
-        a = wider
-        rays, peaks = _refit_rays(frame, dirs, a, p)
-    return _rim(rays, peaks, dirs, a, _outermost(rays, peaks, dirs, a, p), p)
+    return _final_circle(frame, dirs, a, p)
+
+
+def _last_step(rays, peaks, dirs, c, p):
+    """The last step from circle c: refitted through the outermost edges near it (_outermost),
+    then moved to the rims and refitted through them (_rim); rays, peaks: c's support's rays and
+    their edge candidates (_refit_rays; the C++ keeps them from computing the support). Returns
+    ((cx, cy, r), near) as _rim."""
+    return _rim(rays, peaks, dirs, c, _outermost(rays, peaks, dirs, c, p), p)
+
+
+def _final_circle(img, dirs, a, p):
+    """The sphere's circle: the last step from its fit a (_last_step) and, when a is supported
+    below WIDE_BELOW, from a refitted through the outermost edges of the wider band (WIDE_OUT,
+    about a's support's rays); the wider band's circle when more of its rims lie near it (see
+    RIM_NEAR), else the fit's. The wider band's circle is not tried when it is a itself (the
+    refit failed). Returns (cx, cy, r)."""
+    rays, peaks = _refit_rays(img, dirs, a, p)
+    c, near = _last_step(rays, peaks, dirs, a, p)
+    if not a[3] < WIDE_BELOW:
+        return c
+    w = _outermost(rays, peaks, dirs, a, p, WIDE_OUT)
+    if w == (a[0], a[1], a[2]):
+        return c
+    cw, near_w = _last_step(*_refit_rays(img, dirs, w, p), dirs, w, p)
+    return cw if near_w > near else c
 
 
 # ---- the public steps -----------------------------------------------------------------------

@@ -1890,19 +1890,20 @@ void outermost(const std::vector<double> &dirs, const pp_params *p, const Found 
 }
 
 // The sphere's circle, when supported below wide_below after tangent, is refitted
-// through the outermost edges to wide_out inlier_px outside it and kept when
-// that circle is better supported (preprocess.py WIDE_BELOW, WIDE_OUT: the
-// same values, and their measured reason).
+// through the outermost edges to wide_out inlier_px outside it, and that circle
+// kept when more of its rims lie near it (final_circle; a refused frame's best
+// fit, in rescue: when better supported) (preprocess.py WIDE_BELOW, WIDE_OUT:
+// the same values, and their measured reason).
 constexpr double wide_below = 0.86;
 constexpr double wide_out = 3.0;
 
-// The sphere's fit, when supported below wide_below, refitted through the
-// outermost edges to wide_out inlier_px outside it (preprocess.py _wide): near
-// the limb a texture band's edge runs along the rim a few pixels inside it,
-// and the fit can settle on it along one arc. That circle replaces the fit
-// when better supported. For the sphere, after every decision, and in rescue.
-// *rays holds the support rays of *fit, and of the kept
-// circle after; *spare is scratch.
+// A refused frame's best fit (rescue), when supported below wide_below,
+// refitted through the outermost edges to wide_out inlier_px outside it
+// (preprocess.py _wide): near the limb a texture band's edge runs along the
+// rim a few pixels inside it, and the fit can settle on it along one arc.
+// That circle replaces the fit when better supported (the sphere's is judged
+// by its rims instead: final_circle). *rays holds the support rays of *fit,
+// and of the kept circle after; *spare is scratch.
 void wide(const Frame &f, const std::vector<double> &dirs, const pp_params *p, Found *fit,
           Rays *rays, Rays *spare)
 {
@@ -1916,19 +1917,50 @@ void wide(const Frame &f, const std::vector<double> &dirs, const pp_params *p, F
     }
 }
 
-// The sphere's last step (preprocess.py _outermost, then _rim), from its
-// support's rays: refitted through the outermost edges near it (outermost, to
-// 2 inlier_px outside), then that circle moved to the rim: on each ray the
-// peak nearest where the ray crosses it, its outer half-maximum less the edge
-// half-width, the median of their distances from the circle added to its
-// radius, and the circle refitted through those rims (preprocess.py _rim: the
-// steps lean inwards where the limb darkens to the backdrop's level, the
-// rims do not).
-void final_circle(const std::vector<double> &dirs, const pp_params *p, const Found &a,
-                  const Rays &rays, double *ocx, double *ocy, double *orad)
+// The circle through the rims (xs, ys) (preprocess.py _through_rims), from the
+// circle of radius *r about their origin: irls_iters rounds at the floor of
+// the robust scale (a rim tukey_c sigma_min_px or more off drops out), each
+// from the last; a round with fewer than 8 rims of weight or a failed fit ends
+// it with the circle before. *x, *y, *r: the circle about the origin.
+static void through_rims(const std::vector<double> &xs, const std::vector<double> &ys,
+                         const pp_params *p, double *x, double *y, double *r)
+{
+    thread_local std::vector<double> res, wts;
+    res.resize(xs.size());
+    wts.resize(xs.size());
+    *x = 0.0;
+    *y = 0.0;
+    for (int it = 0; it < p->irls_iters; it++) {
+        residuals(xs.data(), ys.data(), xs.size(), *x, *y, *r, res.data());
+        tukey_weights(res.data(), res.size(), p->tukey_c * p->sigma_min_px, wts.data());
+        size_t used = 0;
+        for (double v : wts) used += v > 0.0;
+        double fx, fy, fr;
+        if (used < 8 || !kasa(xs, ys, wts, &fx, &fy, &fr)) break;
+        *x = fx;
+        *y = fy;
+        *r = fr;
+    }
+}
+
+// Rims within rim_near inlier_px of the last step's circle judge it against
+// another (preprocess.py RIM_NEAR: the same value, and its measured reason).
+constexpr double rim_near = 0.5;
+
+// The last step from circle a (preprocess.py _last_step: _outermost, then
+// _rim), from its support's rays: refitted through the outermost edges near it
+// (outermost, to 2 inlier_px outside), then that circle moved to the rim: on
+// each ray the peak nearest where the ray crosses it, its outer half-maximum
+// less the edge half-width, the median of their distances from the circle
+// added to its radius, and the circle refitted through those rims
+// (through_rims: the steps lean inwards where the limb darkens to the
+// backdrop's level, the rims do not). Returns how many rims lie within
+// rim_near inlier_px of the circle (0 with fewer than 8 rims).
+static int last_step(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+                     const Rays &rays, double *ocx, double *ocy, double *orad)
 {
     const int K = (int)dirs.size() / 2;
-    thread_local std::vector<double> w, outer, xs, ys, res, wts;
+    thread_local std::vector<double> w, outer, xs, ys;
     const int32_t *poff = rays.off.data();
     const double *pp = rays.pos.data();
     double nx, ny, nr;
@@ -1962,7 +1994,7 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
     *ocy = ny;
     *orad = nr;
     const size_t m = w.size();
-    if (m < 8) return;
+    if (m < 8) return 0;
     std::nth_element(w.begin(), w.begin() + (long)((m - 1) / 2), w.end());
     const double hw = w[(m - 1) / 2];
     w.clear();  // now the rims' distances from the circle, in ray order
@@ -1976,26 +2008,41 @@ void final_circle(const std::vector<double> &dirs, const pp_params *p, const Fou
             ys.push_back(ey);
             w.push_back(std::sqrt(ex * ex + ey * ey) - nr);
         }
-    // the circle refitted through the rims: irls_iters rounds at the floor of
-    // the robust scale (a rim 1.2 px or more off drops out), each from the
-    // last; a round with fewer than 8 rims of weight or a failed fit ends it
-    double x = 0.0, y = 0.0, r = nr + median_of(w.data(), w.size());
-    res.resize(xs.size());
-    wts.resize(xs.size());
-    for (int it = 0; it < p->irls_iters; it++) {
-        residuals(xs.data(), ys.data(), xs.size(), x, y, r, res.data());
-        tukey_weights(res.data(), res.size(), p->tukey_c * p->sigma_min_px, wts.data());
-        size_t used = 0;
-        for (double v : wts) used += v > 0.0;
-        double fx, fy, fr;
-        if (used < 8 || !kasa(xs, ys, wts, &fx, &fy, &fr)) break;
-        x = fx;
-        y = fy;
-        r = fr;
-    }
+    double x, y, r = nr + median_of(w.data(), w.size());
+    through_rims(xs, ys, p, &x, &y, &r);
     *ocx = nx + x;
     *ocy = ny + y;
     *orad = r;
+    // the rims near it (w: scratch)
+    w.resize(xs.size());
+    residuals(xs.data(), ys.data(), xs.size(), x, y, r, w.data());
+    int near = 0;
+    for (double v : w) near += std::fabs(v) <= rim_near * p->inlier_px;
+    return near;
+}
+
+// The sphere's circle (preprocess.py _final_circle): the last step from its
+// fit a and, when a is supported below wide_below, from a refitted through
+// the outermost edges of the wider band (wide_out, about a's support's rays);
+// the wider band's circle when more of its rims lie near it, else the fit's.
+// Not tried when the wider refit failed (its circle is a's). rays: a's
+// support's rays; *spare: scratch.
+void final_circle(const Frame &f, const std::vector<double> &dirs, const pp_params *p,
+                  const Found &a, const Rays &rays, Rays *spare, double *ocx, double *ocy,
+                  double *orad)
+{
+    const int near = last_step(dirs, p, a, rays, ocx, ocy, orad);
+    if (!(a.support < wide_below)) return;
+    Found w = a;
+    outermost(dirs, p, a, rays, wide_out, &w.cx, &w.cy, &w.r);
+    if (w.cx == a.cx && w.cy == a.cy && w.r == a.r) return;
+    w.support = support(f, dirs, w.cx, w.cy, w.r, p, spare);
+    double cx, cy, r;
+    if (last_step(dirs, p, w, *spare, &cx, &cy, &r) > near) {
+        *ocx = cx;
+        *ocy = cy;
+        *orad = r;
+    }
 }
 
 // How much brighter a circle's inside is than its edge (preprocess.py
@@ -2562,10 +2609,9 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // a weakly supported sphere tried from larger circles tangent to it on its supported arc
     Found sp = a;
     tangent(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
-    // and refitted through the outermost edges of a wider band
-    wide(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
-    // refitted through the outermost edges near it, then moved to the rims and through them
-    final_circle(dirs, p, sp, bank[fits[(size_t)ia]], ocx, ocy, orad);
+    // refitted through the outermost edges near it, then moved to the rims and through them,
+    // and from the wider band's circle too when weakly supported
+    final_circle(f, dirs, p, sp, bank[fits[(size_t)ia]], &bank[all.size()], ocx, ocy, orad);
     return 0;
 }
 

@@ -35,7 +35,7 @@ def test_rim_and_outermost_edges(frames, monkeypatch):
         ec, _ = circle_error(pp.find_sphere(imgs[i], p, CAMERA), frames[i][1])
         assert ec > 0.7, (frames[i][0].name, ec)
     # without either, the `rig` frame's radius is the steepest step's, too small
-    monkeypatch.setattr(pp, "_rim", lambda rays, peaks, dirs, fit, new, p: new)
+    monkeypatch.setattr(pp, "_rim", lambda rays, peaks, dirs, fit, new, p: (new, 0))
     found = pp.find_sphere(imgs[0], p, CAMERA)
     assert found[2] < frames[0][1][2] and circle_error(found, frames[0][1])[1] > 0.6, found
 

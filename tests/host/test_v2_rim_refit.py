@@ -14,7 +14,7 @@ import pytest
 
 from training import preprocess as pp
 from v2_raycast_cases import (assert_off_centre, assert_same_circles_in_c, assert_within_limits, params,
-                              render_seeded, without_rim_refit)
+                              render_seeded, without_rim_choice, without_rim_refit)
 
 FRAMES = [(("rig-unseen", 7, "2.278_-29.866_-21.687.png"), 433),
           (("rig-unseen", 41, "-9.957_10.721_18.019.png"), 432),
@@ -29,7 +29,10 @@ def frames(tmp_path_factory):
 def test_refit_through_the_rims(frames, monkeypatch):
     p = params()
     imgs = assert_within_limits(frames, p)
-    without_rim_refit(monkeypatch)  # what this guards: each more than 0.5 px off
+    # what this guards: each more than 0.5 px off (the rims' choice of circle switched off too:
+    # it mends one of them as well)
+    without_rim_refit(monkeypatch)
+    without_rim_choice(monkeypatch)
     assert_off_centre(imgs, frames, p, 0.5)
 
 

@@ -30,13 +30,13 @@ def test_tangent_circles(frames, monkeypatch):
     p = params()
     imgs = assert_within_limits(frames, p)
     # without the tangent tries: all more than a pixel off centre (what this guards), and still
-    # more than half a pixel with the wider band's refit after them (_wide); the circle's refit
-    # through the rims at the end is off too (it mends the `rig` frame as well)
+    # more than half a pixel with the wider band's refit after them (_final_circle); the circle's
+    # refit through the rims at the end is off too (it mends the `rig` frame as well)
     with monkeypatch.context() as m:
         without_rim_refit(m)
         m.setattr(pp, "_tangent", lambda img, dirs, fit, p: fit)
         assert_off_centre(imgs, frames, p, 0.5)
-        m.setattr(pp, "_wide", lambda img, dirs, fit, rays, peaks, p: fit)
+        m.setattr(pp, "WIDE_BELOW", 0.0)
         assert_off_centre(imgs, frames, p, 1.0)
     # with them, but only the passes' circles: the dark-limbed frame more than a pixel off
     passes_only = pp._tangent_tries

@@ -1,5 +1,6 @@
 """sphere-crop-v2 refits a weakly supported sphere through the outermost edges of a wider band and
-keeps that circle when it is better supported (training/preprocess.py _wide, docs/interfaces.md
+keeps the last step from that circle when more of its rims lie near it (training/preprocess.py
+_final_circle; a refused frame's best fit when better supported: _wide; docs/interfaces.md
 step 5). Near the limb the sphere's surface is seen edge-on, so a texture band's edge there runs
 along the rim a few pixels inside it; over a dark backdrop its colour step can be larger than the
 rim's, and the fit settles on it along one arc. Three frames of the independent ray-caster
@@ -27,7 +28,7 @@ def test_wide_band(frames, monkeypatch):
     p = params()
     imgs = assert_within_limits(frames, p)
     # without the wider band: all more than a pixel off centre (what this guards)
-    monkeypatch.setattr(pp, "_wide", lambda img, dirs, fit, rays, peaks, p: fit)
+    monkeypatch.setattr(pp, "WIDE_BELOW", 0.0)
     assert_off_centre(imgs, frames, p, 1.0)
 
 

@@ -1,9 +1,9 @@
 """Shared by the sphere-crop-v2 regression tests on frames of the independent ray-caster
 (test_v2_weak_fit.py, test_v2_rim.py, test_v2_unanswered.py, test_v2_limb.py, test_v2_tangent.py,
-test_v2_wide.py, test_v2_first_peak.py): the shipped model's localisation parameters, the
-reference camera file, the frames made again from (family, seed, index) (seed 0's as
-build/realscene-final holds them), the error measure of docs/bench/localise.md, and the check that
-the C runtime finds the circle Python finds."""
+test_v2_wide.py, test_v2_first_peak.py, test_v2_rim_near.py, ...): the shipped model's
+localisation parameters, the reference camera file, the frames made again from (family, seed,
+index) (seed 0's as build/realscene-final holds them), the error measure of
+docs/bench/localise.md, and the check that the C runtime finds the circle Python finds."""
 import json
 import math
 import subprocess
@@ -75,6 +75,17 @@ def without_rim_refit(monkeypatch):
     corrects the lean of a circle fitted through the steps inside a dark limb, as several earlier
     steps do; a test of one of those steps switches it off to show what its own step mends."""
     monkeypatch.setattr(pp, "_through_rims", lambda xs, ys, r, p: (0.0, 0.0, r))
+
+
+def without_rim_choice(monkeypatch):
+    """The sphere's circle chosen as it was before its rims judged it (_final_circle): the wider
+    band's circle when better supported (_wide), then the last step from it. That choice mends
+    some of the frames an earlier step mends too; a test of such a step switches it off to show
+    what its own step mends."""
+    def by_support(img, dirs, a, p):
+        w = pp._wide(img, dirs, a, *pp._refit_rays(img, dirs, a, p), p)
+        return pp._last_step(*pp._refit_rays(img, dirs, w, p), dirs, w, p)[0]
+    monkeypatch.setattr(pp, "_final_circle", by_support)
 
 
 def circle_error(found, truth):
