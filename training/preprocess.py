@@ -165,8 +165,14 @@ CUT_SHADE = 1.0
 # (a held-out `refuse` frame of seed 405, two spheres on clutter: the second's fit 0.33, from
 # _grow's circles 0.69, answered with a confident pose without this). Only such circles do the
 # work: on the 2 700 development frames (seeds 0, 111-135, 136-140, 401-402 and the training
-# renderer's val sets) no frame changes, answered or refused, and no circle moves. A constant of
-# the algorithm, not a model parameter; host/libposeinfer/crop2.cpp has the same (second_retry).
+# renderer's val sets) no frame changes, answered or refused, and no circle moves. A circle from
+# min_support to below (1 + min_support) / 2 that is not a second sphere as it is (_flat: its
+# inside as bright as its edge) is tried the same way, until (1 + min_support) / 2: a second
+# sphere's fit 3-4 px too large on one side reaches the backdrop there and its limb shading
+# looks flat (a held-out `refuse` frame of seed 460: 0.422 and shading 1.10, grown 0.69 and 2.54,
+# answered with a confident pose without this); on the 9 400 development frames (seeds 418-441,
+# two-edge 500-502, rig-photo 501-503) no frame changes. A constant of the algorithm, not a model
+# parameter; host/libposeinfer/crop2.cpp has the same (second_retry).
 SECOND_RETRY = 0.25
 
 # A circle tried again that way and still below min_support, with at least SECOND_WEAK of support
@@ -1539,13 +1545,16 @@ def _find_sphere_v2(frame, p, camera=None):
                                       _beside_support(frame, dirs, a, b, p)) >= p["min_support"]):
             raise NoSphere(_two_spheres(a, b))
     # a second sphere whose fit settled on its texture: weak circles of the sphere's size beside
-    # it tried again as the sphere's weak fit is (SECOND_RETRY)
+    # it tried again as the sphere's weak fit is (SECOND_RETRY), until min_support; one above
+    # that but below decisive, not a second sphere as it is (above), until decisive
     for b in fits:
-        if (b is a or not SECOND_RETRY <= b[3] < p["min_support"] or not _sized(b[2], rmin, rmax)
+        if (b is a or not SECOND_RETRY <= b[3] < decisive or not _sized(b[2], rmin, rmax)
                 or not _apart(a, b, p)):
             continue
-        g = _grown(frame, dirs, b, p, True, p["min_support"])
-        if g[3] >= p["min_support"] and _sized(g[2], rmin, rmax) and _second_beside(frame, dirs, a, g, p):
+        weak = b[3] < p["min_support"]
+        g = _grown(frame, dirs, b, p, True, p["min_support"] if weak else decisive)
+        if ((weak or g is not b) and g[3] >= p["min_support"] and _sized(g[2], rmin, rmax)
+                and _second_beside(frame, dirs, a, g, p)):
             raise NoSphere(_two_spheres(a, g))
         # still weak: a second sphere when it looks like the sphere (SECOND_WEAK)
         if (SECOND_WEAK <= g[3] < p["min_support"] and _sized(g[2], rmin, rmax)

@@ -2586,15 +2586,19 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     }
     // a second sphere whose fit settled on its texture: weak circles of the
     // sphere's size beside it tried again as the sphere's weak fit is
-    // (second_retry); their support rays' slots are not needed after this
+    // (second_retry), until min_support; one above that but below decisive, not
+    // a second sphere as it is (above), until decisive; their support rays'
+    // slots are not needed after this
     for (size_t i = 0; i < all.size(); i++) {
         const Found &b = all[i];
-        if (i == fits[(size_t)ia] || !(second_retry <= b.support && b.support < p->min_support) ||
+        if (i == fits[(size_t)ia] || !(second_retry <= b.support && b.support < decisive) ||
             !sized(b.r, rmin, rmax) || !apart(a, b, p))
             continue;
+        const bool weak = b.support < p->min_support;
         Found g = b;
-        grown(f, dirs, p, &g, bank, i, all.size(), true, p->min_support);
-        if (g.support >= p->min_support && sized(g.r, rmin, rmax) &&
+        grown(f, dirs, p, &g, bank, i, all.size(), true, weak ? p->min_support : decisive);
+        const bool moved = g.cx != b.cx || g.cy != b.cy || g.r != b.r;
+        if ((weak || moved) && g.support >= p->min_support && sized(g.r, rmin, rmax) &&
             second_beside(f, dirs, a, g, p, &bank[all.size()])) {
             two_spheres(a, g, err, errlen);
             return -1;
