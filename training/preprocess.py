@@ -1323,14 +1323,22 @@ def _limb_shading(img, dirs, cx, cy, r, p):
     return _median(v[:, :ni].max(axis=1).tolist()) / max(1.0, _median(v[:, ni:].max(axis=1).tolist()))
 
 
+def _shadings(img, dirs, a, b, p):
+    """Sphere a's and circle b's shading (_limb_shading), to compare b's with a's: None when a's is
+    unknown or below LIMB_MIN (a sphere over-exposed to its rim shows none, and then nothing is
+    told apart) or b's is unknown."""
+    sa = _limb_shading(img, dirs, a[0], a[1], a[2], p)
+    if sa is None or not sa >= LIMB_MIN:
+        return None
+    sb = _limb_shading(img, dirs, b[0], b[1], b[2], p)
+    return None if sb is None else (sa, sb)
+
+
 def _flat(img, dirs, a, b, p):
     """Whether circle b's inside is flat where sphere a's darkens towards its rim (see LIMB_SHARE):
     then b is no second sphere."""
-    sa = _limb_shading(img, dirs, a[0], a[1], a[2], p)
-    if sa is None or not sa >= LIMB_MIN:
-        return False
-    sb = _limb_shading(img, dirs, b[0], b[1], b[2], p)
-    return sb is not None and sb - 1.0 < LIMB_SHARE * (sa - 1.0)
+    s = _shadings(img, dirs, a, b, p)
+    return s is not None and s[1] - 1.0 < LIMB_SHARE * (s[0] - 1.0)
 
 
 def _in_frame(dirs, cx, cy, r, p, h, w):
@@ -1451,11 +1459,8 @@ def _weak_second(img, dirs, a, b, p):
     SECOND_WEAK (computed last: it is costly)."""
     if not _apart(a, b, p):
         return False
-    sa = _limb_shading(img, dirs, a[0], a[1], a[2], p)
-    if sa is None or not sa >= LIMB_MIN:
-        return False
-    sb = _limb_shading(img, dirs, b[0], b[1], b[2], p)
-    if sb is None or not sb - 1.0 >= WEAK_SHARE * (sa - 1.0):
+    s = _shadings(img, dirs, a, b, p)
+    if s is None or not s[1] - 1.0 >= WEAK_SHARE * (s[0] - 1.0):
         return False
     ta, tb = _texture_steps(img, dirs, a, p), _texture_steps(img, dirs, b, p)
     if ta is None or tb is None or not abs(ta - tb) <= TEXTURE_TOL:

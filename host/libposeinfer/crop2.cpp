@@ -2094,14 +2094,24 @@ bool limb_shading(const Frame &f, const std::vector<double> &dirs, double cx, do
 constexpr double limb_share = 0.25;
 constexpr double limb_min = 1.25;
 
+// Sphere a's and circle b's shading (limb_shading), to compare b's with a's
+// (preprocess.py _shadings): false when a's is unknown or below limb_min (a
+// sphere over-exposed to its rim shows none, and then nothing is told apart)
+// or b's is unknown.
+static bool shadings(const Frame &f, const std::vector<double> &dirs, const Found &a,
+                     const Found &b, const pp_params *p, double *sa, double *sb)
+{
+    return limb_shading(f, dirs, a.cx, a.cy, a.r, p, sa) && *sa >= limb_min &&
+           limb_shading(f, dirs, b.cx, b.cy, b.r, p, sb);
+}
+
 // Whether circle b's inside is flat where sphere a's darkens towards its rim
 // (preprocess.py _flat): then b is no second sphere.
 bool flat(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
           const pp_params *p)
 {
     double sa, sb;
-    if (!limb_shading(f, dirs, a.cx, a.cy, a.r, p, &sa) || !(sa >= limb_min)) return false;
-    return limb_shading(f, dirs, b.cx, b.cy, b.r, p, &sb) && sb - 1.0 < limb_share * (sa - 1.0);
+    return shadings(f, dirs, a, b, p, &sa, &sb) && sb - 1.0 < limb_share * (sa - 1.0);
 }
 
 double rim_outside(double cx, double cy, double r, int h, int w)
@@ -2254,8 +2264,7 @@ bool weak_second(const Frame &f, const std::vector<double> &dirs, const Found &a
 {
     double sa, sb, ta, tb;
     if (!apart(a, b, p)) return false;
-    if (!limb_shading(f, dirs, a.cx, a.cy, a.r, p, &sa) || !(sa >= limb_min)) return false;
-    if (!limb_shading(f, dirs, b.cx, b.cy, b.r, p, &sb) || !(sb - 1.0 >= weak_share * (sa - 1.0)))
+    if (!shadings(f, dirs, a, b, p, &sa, &sb) || !(sb - 1.0 >= weak_share * (sa - 1.0)))
         return false;
     if (!texture_steps(f, dirs, a, p, &ta) || !texture_steps(f, dirs, b, p, &tb) ||
         !(std::fabs(ta - tb) <= texture_tol))
