@@ -170,8 +170,8 @@ CUT_SHADE = 1.0
 # inside as bright as its edge) is tried the same way, until (1 + min_support) / 2: a second
 # sphere's fit 3-4 px too large on one side reaches the backdrop there and its limb shading
 # looks flat (a held-out `refuse` frame of seed 460: 0.422 and shading 1.10, grown 0.69 and 2.54,
-# answered with a confident pose without this); on the 9 400 development frames (seeds 418-441,
-# two-edge 500-502, rig-photo 501-503) no frame changes. A constant of the algorithm, not a model
+# answered with a confident pose without this); on the 9 400 development frames (seeds 418-429
+# and 432-441, two-edge 500-502, rig-photo 501-503) no frame changes. A constant of the algorithm, not a model
 # parameter; host/libposeinfer/crop2.cpp has the same (second_retry).
 SECOND_RETRY = 0.25
 
@@ -221,12 +221,13 @@ WIDE_BELOW = 0.86
 # (_outermost, _rim) runs from both circles, and the one whose rims lie nearer its own circle is
 # kept: more rims within RIM_NEAR inlier_px of it, the fit's on ties (_final_circle). The support
 # counts a ray within inlier_px of a circle, so a circle 1-2 px off the rim along a dark arc can
-# count as many rays as the true one, or more (edge s426 -9.272_9.416_12.572: the fit 0.648 at
-# 1.82 px off centre, the wider band's 0.539 at 0.36 px); the rims tell them apart at half a pixel
-# (58 near against 60). On the 6 900 development frames of the ray-caster (seeds 418-441, two-edge
-# 500-502, rig-photo 501-503) 6 862 -> 6 869 circles within 0.5 px and 0.5 % (9 in, 2 out); with
-# 0.3 inlier_px 6 869, with 1 (the floor scale's cut) 6 868, by the support as before 6 862. A
-# constant of the algorithm, not a model parameter; crop2.cpp has the same (rim_near).
+# count as many rays as the true one, or more (edge s424 3.517_18.502_25.991: the fit 0.641, its
+# last step 1.12 px off centre; the wider band's circle 0.633, its last step 0.17 px off); the
+# rims tell them apart at half a pixel (63 near against 89). On the 6 900 development frames of
+# the ray-caster (seeds 418-429 and 432-441, rig-photo 501-503) 6 862 -> 6 869 circles within
+# 0.5 px and 0.5 % (9 in, 2 out); with 0.3 inlier_px 6 869, by the rims' Tukey weights at the
+# floor scale 6 868, by the support as before 6 862. A constant of the algorithm, not a model
+# parameter; crop2.cpp has the same (rim_near).
 RIM_NEAR = 0.5
 
 # Fine stripes behind the sphere (blinds, a striped backdrop, shelves) give the coarse vote more
