@@ -166,13 +166,14 @@ CUT_SHADE = 1.0
 # _grow's circles 0.69, answered with a confident pose without this). Only such circles do the
 # work: on the 2 700 development frames (seeds 0, 111-135, 136-140, 401-402 and the training
 # renderer's val sets) no frame changes, answered or refused, and no circle moves. A circle from
-# min_support to below (1 + min_support) / 2 that is not a second sphere as it is (_flat: its
-# inside as bright as its edge) is tried the same way, until (1 + min_support) / 2: a second
-# sphere's fit 3-4 px too large on one side reaches the backdrop there and its limb shading
-# looks flat (a held-out `refuse` frame of seed 460: 0.422 and shading 1.10, grown 0.69 and 2.54,
-# answered with a confident pose without this); on the 9 400 development frames (seeds 418-429
-# and 432-441, two-edge 500-502, rig-photo 501-503) no frame changes. A constant of the algorithm, not a model
-# parameter; host/libposeinfer/crop2.cpp has the same (second_retry).
+# min_support to below (1 + min_support) / 2 that is not a second sphere as it is
+# (_second_beside: e.g. _flat, its inside as bright as its edge) is tried the same way, until
+# (1 + min_support) / 2, and judged again when it moves: a second sphere's fit 3-4 px too large on
+# one side reaches the backdrop there and its limb shading looks flat (a held-out `refuse` frame
+# of seed 460: 0.422 and shading 1.10, grown 0.69 and 2.54, answered with a confident pose
+# without this); on the 9 400 development frames (seeds 418-429 and 432-441, two-edge 500-502,
+# rig-photo 501-503) no frame changes. A constant of the algorithm, not a model parameter;
+# host/libposeinfer/crop2.cpp has the same (second_retry).
 SECOND_RETRY = 0.25
 
 # A circle tried again that way and still below min_support, with at least SECOND_WEAK of support
@@ -199,21 +200,21 @@ WEAK_SHARE = 0.5
 TEXTURE_TOL = 1.0
 
 # The sphere's circle (and a refused frame's best fit in _rescue), when supported below WIDE_BELOW
-# after _tangent, is refitted once more through the outermost edges from 1.5 inlier_px inside it
-# to WIDE_OUT inlier_px outside (the last refit's band reaches 2 inlier_px), and that circle is
-# kept when it is better supported (_wide; the sphere's now when its rims lie nearer: RIM_NEAR).
-# Near the limb the sphere's surface is seen edge-on, so
-# a texture band's edge there runs along the rim, 2-4 px inside it, often with a larger colour
-# step than the rim's over a dark backdrop; the fit can settle on such a band along one arc (a
-# circle 1-2 px small, off towards the other side) and stay there: the rim lies beyond the last
-# refit's band, and _tangent's retries start fine_window_px and 2 fine_window_px out (3 and 6 px
-# as shipped). On the 5 500 development frames (the ray-caster's seeds 0, 111-140 and 401-409,
-# two-edge 500-502, rig-photo 501-503, rig-sensor 601-603, and the training renderer's val sets)
-# 12 circles enter the limits of 0.5 px and 0.5 % and none leaves (rig s404 6.666_-1.074_18.715:
-# support after _tangent 0.75 -> 0.85, 1.73 -> 0.05 px off centre); without the gate (every
-# sphere) the same; with the band to 4 inlier_px, 2 fewer. On 1 200 fresh held-out frames (seeds
-# 410-413) none enters and one leaves (0.37 -> 0.60 px). Constants of the algorithm, not model
-# parameters; crop2.cpp has the same (wide_out, wide_below).
+# after _tangent, is refitted once more through the outermost edges from 1.5 inlier_px inside it to
+# WIDE_OUT inlier_px outside (the last refit's band reaches 2 inlier_px); in _rescue that circle is
+# kept when better supported (_wide), for the sphere the last step from it when more of its rims lie
+# near its result (_final_circle, RIM_NEAR). Near the limb the sphere's surface is seen edge-on, so
+# a texture band's edge there runs along the rim, 2-4 px inside it, often with a larger colour step
+# than the rim's over a dark backdrop; the fit can settle on such a band along one arc (a circle 1-2
+# px small, off towards the other side) and stay there: the rim lies beyond the last refit's band,
+# and _tangent's retries start fine_window_px and 2 fine_window_px out (3 and 6 px as shipped). On
+# the 5 500 development frames (the ray-caster's seeds 0, 111-140 and 401-409, two-edge 500-502,
+# rig-photo 501-503, rig-sensor 601-603, and the training renderer's val sets) 12 circles enter the
+# limits of 0.5 px and 0.5 % and none leaves (rig s404 6.666_-1.074_18.715: support after _tangent
+# 0.75 -> 0.85, 1.73 -> 0.05 px off centre); without the gate (every sphere) the same; with the band
+# to 4 inlier_px, 2 fewer. On 1 200 fresh held-out frames (seeds 410-413) none enters and one leaves
+# (0.37 -> 0.60 px). Constants of the algorithm, not model parameters; crop2.cpp has the same
+# (wide_out, wide_below).
 WIDE_OUT = 3.0
 WIDE_BELOW = 0.86
 
@@ -976,7 +977,8 @@ def _rescue(img, dirs, fit, p):
     answered within the limits; without the shading test a `none` frame to refuse (s413, a
     clutter disk, shading 1.22) was answered too; with it, none. When the tangent circles stay
     below min_support, the circle they reached is refitted through the outermost edges of a
-    wider band, as the sphere is (_wide), and judged the same way: a dark limb over part of the
+    wider band (_wide; kept when better supported, where the sphere's is judged by its rims:
+    _final_circle): a dark limb over part of the
     rim can hold the passes on a band 1-2 px inside it, and the tangent circles slide back there
     (`rig` s423 6.002_0.21_8.019, a grey-blue gradient: the fit 0.383, refitted 0.531, the
     answer 0.10 px off centre; `edge` s422 -0.345_13.951_1.224, 12 % cut by the frame's top:
@@ -988,7 +990,7 @@ def _rescue(img, dirs, fit, p):
         return fit
     t = _tangent(img, dirs, fit, p)
     if not t[3] >= p["min_support"]:
-        # and refitted through the outermost edges of a wider band, as the sphere is (_wide)
+        # and refitted through the outermost edges of a wider band (_wide)
         t = _wide(img, dirs, t, *_refit_rays(img, dirs, t, p), p)
     return t if _lit_sphere(img, dirs, t, p) else fit
 

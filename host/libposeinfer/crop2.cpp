@@ -1499,7 +1499,7 @@ bool consensus(const RayEdges &re, const std::vector<double> &dirs, double r, do
     return true;
 }
 
-// What the sphere's last step (final_circle) needs of a circle's support
+// What the sphere's last step (last_step, outermost) needs of a circle's support
 // rays (preprocess.py _ray_scores from its centre, +-support_flank_px), kept
 // so that no ray is cast again: on each ray its colour step's peaks of at
 // least ray_edge_min, their places and outer half-maxima (none on a ray that
@@ -1890,10 +1890,10 @@ void outermost(const std::vector<double> &dirs, const pp_params *p, const Found 
 }
 
 // The sphere's circle, when supported below wide_below after tangent, is refitted
-// through the outermost edges to wide_out inlier_px outside it, and that circle
-// kept when more of its rims lie near it (final_circle; a refused frame's best
-// fit, in rescue: when better supported) (preprocess.py WIDE_BELOW, WIDE_OUT:
-// the same values, and their measured reason).
+// through the outermost edges to wide_out inlier_px outside it, and the last step
+// from that circle kept when more of its rims lie near its result (final_circle;
+// a refused frame's best fit, in rescue: that circle when better supported)
+// (preprocess.py WIDE_BELOW, WIDE_OUT: the same values, and their measured reason).
 constexpr double wide_below = 0.86;
 constexpr double wide_out = 3.0;
 

@@ -102,10 +102,13 @@ def test_second_sphere_above_min_support_is_grown(frames, monkeypatch):
     path = frames["grown"][0]
     assert _error(path).startswith("two spheres in frame"), path.name
     # with a circle above min_support not grown (the weak ones still are), the frame is answered
-    # (what this guards)
+    # (what this guards; only the second circles' retries grow a circle at or above min_support
+    # with inward tries, so the stub singles them out)
     grown = pp._grown
-    monkeypatch.setattr(pp, "_grown", lambda img, dirs, fit, p, inward, until: fit
-                        if inward and fit[3] >= p["min_support"] else grown(img, dirs, fit, p, inward, until))
+
+    def weak_only(img, dirs, fit, p, inward, until):
+        return fit if inward and fit[3] >= p["min_support"] else grown(img, dirs, fit, p, inward, until)
+    monkeypatch.setattr(pp, "_grown", weak_only)
     pp.find_sphere(cv2.imread(str(path), cv2.IMREAD_COLOR), params(), CAMERA)
 
 

@@ -5,7 +5,7 @@ and is shaded as a lit sphere (training/preprocess.py _rescue, docs/interfaces.m
 frame edge with a dark limb over much of the rest of its rim, were refused as "no sphere found in
 frame": frame 97 of seed 406 and frame 81 of seed 410; now both are answered within 0.5 px and 0.5 %
 of the truth. When the tangent circles do not reach min_support, the circle they reached is refitted
-through the outermost edges of a wider band, as the sphere is (_wide): frame 97 of the `rig` family,
+through the outermost edges of a wider band (_wide): frame 97 of the `rig` family,
 seed 423 (a dark limb over a grey-blue gradient), was refused so and is now answered within the
 limits. When the best fit stays below min_support, every other fit is tried the same way
 (_retry_rest): frame 67 of the `rig-unseen` family, seed 432 (a dark limb over a black backdrop,

@@ -35,14 +35,17 @@ def _stub_steps(monkeypatch, near_fit, near_wide):
     monkeypatch.setattr(pp, "_refit_rays", lambda img, dirs, c, p: (None, None))
     monkeypatch.setattr(pp, "_outermost", lambda rays, peaks, dirs, c, p, out=2.0:
                         (11.0, 10.0, 5.5) if out == pp.WIDE_OUT else (c[0], c[1], c[2]))
-    monkeypatch.setattr(pp, "_last_step", lambda rays, peaks, dirs, c, p: ((1.0, 1.0, 1.0), near_fit)
-                        if c[0] == 10.0 else ((2.0, 2.0, 2.0), near_wide))
+    monkeypatch.setattr(pp, "_last_step", lambda rays, peaks, dirs, c, p:
+                        ((1.0, 1.0, 1.0) if c[0] == 10.0 else (2.0, 2.0, 2.0),
+                         near_fit if c[0] == 10.0 else near_wide))
 
 
-def test_the_fit_kept_on_ties(monkeypatch):
+def test_the_fit_kept_unless_the_wider_band_has_more_rims_near(monkeypatch):
     p = params()
     dirs = pp._ray_dirs(p["rays"])
     _stub_steps(monkeypatch, 40, 40)
+    assert pp._final_circle(None, dirs, (10.0, 10.0, 5.0, 0.5), p) == (1.0, 1.0, 1.0)
+    _stub_steps(monkeypatch, 41, 40)
     assert pp._final_circle(None, dirs, (10.0, 10.0, 5.0, 0.5), p) == (1.0, 1.0, 1.0)
     _stub_steps(monkeypatch, 40, 41)
     assert pp._final_circle(None, dirs, (10.0, 10.0, 5.0, 0.5), p) == (2.0, 2.0, 2.0)

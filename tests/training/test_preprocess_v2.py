@@ -213,7 +213,7 @@ def test_refit_last_round_at_the_floor_scale(monkeypatch):
     cx, cy, r = pp._outermost(*case)
     assert len(fits) == pp.DEFAULTS_V2["irls_iters"] - 1
     assert (cx, cy, r) == (100.0 + fits[-1][0], 100.0 + fits[-1][1], fits[-1][2])
-    # the C++ twin does the same (host/libposeinfer/crop2.cpp final_circle)
+    # the C++ twin does the same (host/libposeinfer/crop2.cpp outermost)
     src = (Path(__file__).resolve().parents[2] / "host/libposeinfer/crop2.cpp").read_text()
     last = re.search(r"if \(it == p->irls_iters - 1\) \{.*?tukey_weights\(res\.data\(\), res\.size\(\), "
                      r"p->tukey_c \* p->sigma_min_px, wts\.data\(\)\);.*?if \(kept < 8\) break;", src, re.S)
