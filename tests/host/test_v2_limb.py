@@ -6,12 +6,11 @@ build/realscene-final) was 0.51 px off centre, `rig` frame 39 of seed 121 0.54 p
 round at the floor scale those rays drop out and both are within 0.5 px and 0.5 % of the truth
 (0.46 and 0.49 px; 0.27 and 0.49 px with the sphere's tangent tries, which alone also bring the
 edge frame within, so the rig frame is the one that guards the floor round by itself, by
-0.04 px). The wider band's refit (WIDE_BELOW) took the rig frame to 0.13 px, and to 0.26 px
-without the floor round (chosen by its support): with every step on, both frames stay within the
-limits without that round (edge 0.36 px), so this test guards it with the tangent tries and the
-wider band off, and with the circle not refitted through the rims (_through_rims, which corrects
-the same lean: with it both frames stay within the limits without the floor round). The C
-runtime gives the same circles as Python."""
+0.04 px). With every step on (the wider band, the refit through the rims and the choice by
+them) the frames are 0.18 and 0.04 px off, and 0.18 and 0.13 px without the floor round (measured
+at 986ed63): within the limits either way, so this test guards the floor round with the tangent
+tries and the wider band off, and with the circle not refitted through the rims (_through_rims,
+which corrects the same lean). The C runtime gives the same circles as Python."""
 import pytest
 
 from training import preprocess as pp
