@@ -2036,6 +2036,7 @@ void final_circle(const Frame &f, const std::vector<double> &dirs, const pp_para
     Found w = a;
     outermost(dirs, p, a, rays, wide_out, &w.cx, &w.cy, &w.r);
     if (w.cx == a.cx && w.cy == a.cy && w.r == a.r) return;
+    // its own support's rays, as the fit's (the support itself decides nothing here)
     w.support = support(f, dirs, w.cx, w.cy, w.r, p, spare);
     double cx, cy, r;
     if (last_step(dirs, p, w, *spare, &cx, &cy, &r) > near) {
