@@ -36,6 +36,18 @@
 // still move it by more than its rounding step.
 #define MAX_BLOCK_DEG 720.0f
 #define MAX_TARGET_STEPS 1.0e9f       // |target| in steps; keeps step deltas inside int32 (error:33 beyond)
+// Slowest acceleration, deg/s^2: $120-$122 below it are refused (error:3),
+// and the planner raises a lower one (an EEPROM from an older firmware) to it.
+// The segment prep subtracts each part of a segment from the block's remaining
+// distance on its own. From rest, a segment stretched to MAX_SEGMENT_MIN
+// (stepper.c) ends with a part of t = 2^18 DT_SEGMENT = 43.7 min that moves
+// 1.5 a t^2; unless that exceeds half the float step of a MAX_BLOCK_DEG block
+// (2^-15 deg), i.e. a > 1.1e-8 deg/min^2 = 3e-12 deg/s^2, no segment ever
+// moves, the speed gained per segment is lost to rounding as well, and the
+// prep spins. 0.1 deg/s^2 is far above that (a 720-deg block from rest moves
+// within 40 ms) and far below what a stage needs to move in useful time (it
+// takes 5 minutes to reach 30 deg/s).
+#define MINIMUM_ACCELERATION 0.1f
 #define N_COORDINATE_SYSTEM 6         // G54..G59
 #define N_DECIMAL_COORDVALUE 3        // positions printed with 3 decimals (deg)
 #define N_DECIMAL_SETTINGVALUE 3

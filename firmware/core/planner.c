@@ -263,7 +263,9 @@ static uint8_t plan_queue_block(const int32_t *delta_steps, float feed_rate, uin
 
   block->millimeters = convert_delta_vector_to_unit_vector(unit_vec);
   float accel[N_AXIS];
-  for (uint8_t i = 0; i < N_AXIS; i++) accel[i] = settings.acceleration[i] * 3600.0f; // deg/s^2 -> deg/min^2
+  // deg/s^2 -> deg/min^2, raised to the floor as slow feeds are (config.h: a
+  // lower one, left in EEPROM by an older firmware, would stall the segment prep).
+  for (uint8_t i = 0; i < N_AXIS; i++) accel[i] = max(settings.acceleration[i], MINIMUM_ACCELERATION) * 3600.0f;
   block->acceleration = limit_value_by_axis_maximum(accel, unit_vec);
   block->rapid_rate = limit_value_by_axis_maximum(settings.max_rate, unit_vec);
   block->programmed_rate = (condition & PL_COND_FLAG_RAPID_MOTION) ? block->rapid_rate : feed_rate;

@@ -205,6 +205,10 @@ uint8_t settings_store_global_setting(uint8_t parameter, float value)
             break;
           case 2:
             if (value <= 0.0f) return STATUS_NEGATIVE_VALUE;
+            // Out of range (config.h), as $0=101. Decimal input reads a float step
+            // or two off ("0.10" lands below 0.1f): only what is clearly below
+            // is refused, the planner raises the rest to the floor.
+            if (value < MINIMUM_ACCELERATION * 0.99999f) return STATUS_INVALID_STATEMENT;
             settings.acceleration[idx] = value;
             break;
           case 3: settings.max_travel[idx] = value; break;

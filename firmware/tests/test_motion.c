@@ -118,6 +118,34 @@ static void test_move_time_trapezoid(void **state)
   assert_int_equal(host_motor_steps[0], 8400);
 }
 
+static void test_floor_acceleration_move_ends(void **state)
+{
+  // The slowest acceleration accepted, on the longest block (720 deg, where
+  // a float step of the remaining distance is largest): the move ends, and
+  // on time: a triangle of 2 sqrt(d/a) = 169.7 s, within 3 % (its first and
+  // last steps, 1.4 s from rest, are where step timing rounds most).
+  // 10 steps/deg keeps the simulation short.
+  h_send("$100=10");
+  h_send("$120=0.1");
+  h_take();
+  double t = timed_move("G1 X720 F1800") / (double)F_CPU;
+  assert_string_equal(h_take(), "ok\r\n");
+  assert_int_equal(host_motor_steps[0], 7200);
+  assert_true(fabs(t / (2 * sqrt(720.0 / MINIMUM_ACCELERATION)) - 1) < 0.03);
+}
+
+static void test_acceleration_below_floor_is_raised(void **state)
+{
+  // An EEPROM written before the floor may hold a slower acceleration ($120
+  // refuses it now). The planner plans with the floor, and the move ends:
+  // 1 deg as a triangle, 2 sqrt(1 / 0.1) = 6.3 s (within 3 %, as above).
+  settings.acceleration[0] = 5e-26f;
+  double t = timed_move("G1 X1 F60") / (double)F_CPU;
+  assert_string_equal(h_take(), "ok\r\n");
+  assert_int_equal(host_motor_steps[0], 800);
+  assert_true(fabs(t / (2 * sqrt(1.0 / MINIMUM_ACCELERATION)) - 1) < 0.03);
+}
+
 static void test_step_counts_random_moves(void **state)
 {
   srand(1234);
@@ -223,6 +251,8 @@ int main(void)
     cmocka_unit_test_setup(test_rates_limited_per_axis, setup),
     cmocka_unit_test_setup(test_empty_move, setup),
     cmocka_unit_test_setup(test_move_time_trapezoid, setup),
+    cmocka_unit_test_setup(test_floor_acceleration_move_ends, setup),
+    cmocka_unit_test_setup(test_acceleration_below_floor_is_raised, setup),
     cmocka_unit_test_setup(test_step_counts_random_moves, setup),
     cmocka_unit_test_setup(test_streamed_short_moves, setup),
     cmocka_unit_test_setup(test_hold_decelerates_and_resume_completes, setup),

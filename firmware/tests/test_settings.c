@@ -5,6 +5,7 @@
 #include <setjmp.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <math.h>
 #include <cmocka.h>
 #include "harness.h"
 #include "nuts.h"
@@ -113,6 +114,21 @@ static void test_validation(void **state)
   assert_int_equal(settings.step_invert_mask, 7);
 }
 
+static void test_acceleration_floor(void **state)
+{
+  // Below MINIMUM_ACCELERATION the segment prep never gets a move going:
+  // refused as out of range; 0 and negatives keep error:4.
+  assert_int_equal(settings_store_global_setting(120, 5e-26f), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(121, MINIMUM_ACCELERATION * 0.9f), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(122, 0), STATUS_NEGATIVE_VALUE);
+  assert_int_equal(settings_store_global_setting(122, -1), STATUS_NEGATIVE_VALUE);
+  for (int i = 0; i < N_AXIS; i++) assert_float_equal(settings.acceleration[i], 90.0f, 0);
+  // The floor itself, also as "0.10" reads it (a float step below 0.1f).
+  assert_int_equal(settings_store_global_setting(120, MINIMUM_ACCELERATION), STATUS_OK);
+  assert_float_equal(settings.acceleration[0], MINIMUM_ACCELERATION, 0);
+  assert_int_equal(settings_store_global_setting(121, nextafterf(MINIMUM_ACCELERATION, 0)), STATUS_OK);
+}
+
 // doc/error_codes.csv and doc/alarm_codes.csv list exactly the codes of codes.h.
 static void check_csv(const char *path, const int *codes, size_t n)
 {
@@ -164,6 +180,7 @@ int main(void)
     cmocka_unit_test_setup(test_version_mismatch, setup),
     cmocka_unit_test_setup(test_coord_records, setup),
     cmocka_unit_test_setup(test_validation, setup),
+    cmocka_unit_test_setup(test_acceleration_floor, setup),
     cmocka_unit_test(test_code_tables),
   };
   return cmocka_run_group_tests_name("settings", tests, NULL, NULL);
