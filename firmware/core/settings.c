@@ -186,6 +186,15 @@ void settings_init(void)
   }
 }
 
+// An axis' fastest step rate stays within MAX_STEP_RATE_HZ. The planner
+// raises slower feeds to MINIMUM_FEED_RATE, also past a lower $110: with a
+// huge $100 that floor alone would ask for MHz (a segment of more steps than
+// it counts).
+static uint8_t settings_step_rate_ok(float steps_per_deg, float max_rate)
+{
+  return steps_per_deg * max(max_rate, MINIMUM_FEED_RATE) <= MAX_STEP_RATE_HZ * 60.0f;
+}
+
 uint8_t settings_store_global_setting(uint8_t parameter, float value)
 {
   if (value < 0.0f) return STATUS_NEGATIVE_VALUE;
@@ -196,11 +205,11 @@ uint8_t settings_store_global_setting(uint8_t parameter, float value)
       if (parameter >= 100 + 10 * set_idx && idx < N_AXIS) {
         switch (set_idx) {
           case 0:
-            if (value * settings.max_rate[idx] > MAX_STEP_RATE_HZ * 60.0f || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+            if (!settings_step_rate_ok(value, settings.max_rate[idx]) || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
             settings.steps_per_deg[idx] = value;
             break;
           case 1:
-            if (value * settings.steps_per_deg[idx] > MAX_STEP_RATE_HZ * 60.0f || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+            if (!settings_step_rate_ok(settings.steps_per_deg[idx], value) || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
             settings.max_rate[idx] = value;
             break;
           case 2:

@@ -148,6 +148,9 @@ void st_idle_poll(void)
 // Longest segment (min): far beyond one step at the lowest feed, only a
 // guard against a zero speed.
 #define MAX_SEGMENT_MIN 60.0f
+// Most steps a segment counts (n_step). Accepted settings keep a segment
+// near 400 (40 kHz for 10 ms, MINIMUM_FEED_RATE included).
+#define SEGMENT_MAX_STEPS 65535.0f
 
 // Step ISR, cold part: take the next segment (and block). Returns 0 when
 // the ISR should end here (no segment: last pulse ending, or stopped).
@@ -268,6 +271,15 @@ void st_update_plan_block_parameters(void)
     pl_block->entry_speed_sqr = prep.current_speed * prep.current_speed;
     pl_block = NULL;
   }
+}
+
+// The segment prep cannot go on with this block: stop on the fault path
+// (drivers off, ALARM:10, reset to continue) rather than queue a segment
+// that the step ISR would miscount.
+static void st_prep_fault(void)
+{
+  sys.step_control |= STEP_CONTROL_END_MOTION;
+  system_fault(FAULT_INTERNAL);
 }
 
 void st_prep_buffer(void)
@@ -436,9 +448,21 @@ void st_prep_buffer(void)
     } while (mm_remaining > prep.mm_complete);
 
     float step_dist_remaining = prep.step_per_mm * mm_remaining;
+    // Steps per degree times degrees can round above the block's step count
+    // (8002 / 10.0025f * 10.0025f = 8002.0006): the distance left never holds
+    // more steps than are left, or a segment that moved nothing (a hold that
+    // stops where a block starts) would count -1 steps.
+    if (step_dist_remaining > prep.steps_remaining) step_dist_remaining = prep.steps_remaining;
     float n_steps_remaining = ceilf(step_dist_remaining);
     float last_n_steps_remaining = ceilf(prep.steps_remaining);
-    prep_segment->n_step = (uint16_t)(last_n_steps_remaining - n_steps_remaining);
+    float n_step = last_n_steps_remaining - n_steps_remaining;
+    if (n_step > SEGMENT_MAX_STEPS) {
+      // Only with settings that $100/$110 refuse now (an EEPROM from an
+      // older firmware): a step rate far above MAX_STEP_RATE_HZ.
+      st_prep_fault();
+      return;
+    }
+    prep_segment->n_step = (uint16_t)n_step;
 
     if (prep_segment->n_step == 0) {
       if (sys.step_control & STEP_CONTROL_EXECUTE_HOLD) {

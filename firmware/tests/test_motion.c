@@ -203,6 +203,56 @@ static void test_hold_decelerates_and_resume_completes(void **state)
   assert_int_equal(host_motor_steps[0], 24000);
 }
 
+static void test_hold_where_a_block_starts(void **state)
+{
+  // A hold that stops where a block starts (the block before ended at rest)
+  // prepares that block from rest with nothing to move. Here steps/deg times
+  // degrees rounds above the block's step count (8002 / 10.0025f * 10.0025f
+  // = 8002.0006), and that segment counted -1 steps into its uint16_t
+  // (undefined; 65535 steps on the host). Set up as the prep meets it: the
+  // block queued, the hold on, nothing prepared yet.
+  queue(10.0025f, 0, 0, 600, 0);
+  plan_block_t *b = plan_get_current_block();
+  assert_true(ceilf((float)b->step_event_count / b->millimeters * b->millimeters) > b->step_event_count);
+  sys.state = STATE_HOLD;
+  sys.step_control = STEP_CONTROL_EXECUTE_HOLD;
+  st_prep_buffer();
+  assert_true(sys.step_control & STEP_CONTROL_END_MOTION);
+  st_wake_up();
+  h_run(2000);
+  assert_true(sys.suspend & SUSPEND_HOLD_COMPLETE);
+  assert_int_equal(host_motor_steps[0], 0);
+  // '~' runs the whole block.
+  h_send_bytes("~", 1);
+  h_run(600000);
+  assert_int_equal(sys.state, STATE_IDLE);
+  assert_int_equal(host_motor_steps[0], 8002);
+  assert_int_equal(sys_position[0], 8002);
+}
+
+// A fault from the segment prep: ALARM:10, nothing stepped; the reset that
+// ends the critical alarm is scheduled first.
+static void expect_prep_fault(const char *line)
+{
+  host_schedule_byte(board_millis() + 100, 0x18);
+  h_send(line);
+  const char *out = h_take();
+  assert_non_null(strstr(out, "ALARM:10\r\n[MSG:Fault: internal error, drivers disabled]"));
+  assert_int_equal(host_motor_steps[0], 0);
+  assert_int_equal(sys_position[0], 0);
+}
+
+static void test_segment_beyond_its_step_count_faults(void **state)
+{
+  // Settings that $100/$110 refuse now, but an older firmware's EEPROM may
+  // hold: 1e9 steps/deg and a $110 below MINIMUM_FEED_RATE, which the planner
+  // raises to 1 deg/min. The whole 1e5-step block then falls in the first
+  // 10 ms segment, more steps than n_step counts.
+  settings.max_rate[0] = 0.001f;
+  settings.steps_per_deg[0] = 1e9f;
+  expect_prep_fault("G1 X0.0001 F1");
+}
+
 static void test_reset_mid_move_keeps_position(void **state)
 {
   host_schedule_byte(board_millis() + 700, 0x18);
@@ -256,6 +306,8 @@ int main(void)
     cmocka_unit_test_setup(test_step_counts_random_moves, setup),
     cmocka_unit_test_setup(test_streamed_short_moves, setup),
     cmocka_unit_test_setup(test_hold_decelerates_and_resume_completes, setup),
+    cmocka_unit_test_setup(test_hold_where_a_block_starts, setup),
+    cmocka_unit_test_setup(test_segment_beyond_its_step_count_faults, setup),
     cmocka_unit_test_setup(test_reset_mid_move_keeps_position, setup),
     cmocka_unit_test_setup(test_backlash_not_in_position, setup),
     cmocka_unit_test_setup(test_idle_disables_drivers, setup),

@@ -97,6 +97,14 @@ static void test_validation(void **state)
   assert_int_equal(settings_store_global_setting(110, 4000), STATUS_MAX_STEP_RATE_EXCEEDED);
   assert_int_equal(settings_store_global_setting(100, 2000), STATUS_MAX_STEP_RATE_EXCEEDED);
   assert_int_equal(settings_store_global_setting(120, 0), STATUS_NEGATIVE_VALUE);
+  // A $110 below MINIMUM_FEED_RATE runs at it (the planner's floor), so the
+  // step rate check takes the floor's: 1 deg/min x 2.4e6 steps/deg = 40 kHz.
+  assert_int_equal(settings_store_global_setting(110, 0.001f), STATUS_OK);
+  assert_int_equal(settings_store_global_setting(100, 3e6f), STATUS_MAX_STEP_RATE_EXCEEDED);
+  assert_int_equal(settings_store_global_setting(100, 2.4e6f), STATUS_OK);
+  assert_int_equal(settings_store_global_setting(110, 0.5f), STATUS_OK);
+  assert_int_equal(settings_store_global_setting(110, 1.5f), STATUS_MAX_STEP_RATE_EXCEEDED);
+  assert_int_equal(settings_store_global_setting(100, 800), STATUS_OK);
   assert_int_equal(settings_store_global_setting(103, 1), STATUS_INVALID_STATEMENT);
   assert_int_equal(settings_store_global_setting(143, 1), STATUS_INVALID_STATEMENT);
   assert_int_equal(settings_store_global_setting(150, 1), STATUS_INVALID_STATEMENT);
