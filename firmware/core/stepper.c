@@ -275,7 +275,7 @@ void st_update_plan_block_parameters(void)
 
 // The segment prep cannot go on with this block: stop on the fault path
 // (drivers off, ALARM:10, reset to continue) rather than queue a segment
-// that the step ISR would miscount.
+// that the step ISR would miscount, or spin here, deaf to the reset.
 static void st_prep_fault(void)
 {
   sys.step_control |= STEP_CONTROL_END_MOTION;
@@ -468,6 +468,14 @@ void st_prep_buffer(void)
       if (sys.step_control & STEP_CONTROL_EXECUTE_HOLD) {
         // Less than a step to the stop point: the hold is done here.
         sys.step_control |= STEP_CONTROL_END_MOTION;
+        return;
+      }
+      if (mm_remaining == pl_block->millimeters && dt_max >= MAX_SEGMENT_MIN) {
+        // The longest segment moved nothing: the block is too long for its
+        // speed to count its distance down in a float (a tiny $100 and a huge
+        // target, cut by mc_line into blocks far over MAX_BLOCK_DEG), and no
+        // later segment would either.
+        st_prep_fault();
         return;
       }
     }

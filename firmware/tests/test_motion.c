@@ -128,6 +128,7 @@ static void test_floor_acceleration_move_ends(void **state)
   h_send("$100=10");
   h_send("$120=0.1");
   h_take();
+  host_schedule_byte(board_millis() + 300000, 0x18);   // a fault waits for a reset: fail, not hang
   double t = timed_move("G1 X720 F1800") / (double)F_CPU;
   assert_string_equal(h_take(), "ok\r\n");
   assert_int_equal(host_motor_steps[0], 7200);
@@ -140,6 +141,7 @@ static void test_acceleration_below_floor_is_raised(void **state)
   // refuses it now). The planner plans with the floor, and the move ends:
   // 1 deg as a triangle, 2 sqrt(1 / 0.1) = 6.3 s (within 3 %, as above).
   settings.acceleration[0] = 5e-26f;
+  host_schedule_byte(board_millis() + 60000, 0x18);   // as above
   double t = timed_move("G1 X1 F60") / (double)F_CPU;
   assert_string_equal(h_take(), "ok\r\n");
   assert_int_equal(host_motor_steps[0], 800);
@@ -253,6 +255,16 @@ static void test_segment_beyond_its_step_count_faults(void **state)
   expect_prep_fault("G1 X0.0001 F1");
 }
 
+static void test_block_too_long_to_count_down_faults(void **state)
+{
+  // 1e-6 steps/deg lets a target of 1e14 deg through (1e8 steps), and mc_line
+  // cuts it into 65535 blocks of 1.5e9 deg, where a float step is 128 deg:
+  // more than the longest segment moves at 1 deg/min. The prep spun there.
+  h_send("$100=0.000001");
+  h_take();
+  expect_prep_fault("G1 X99999999999999 F1");
+}
+
 static void test_reset_mid_move_keeps_position(void **state)
 {
   host_schedule_byte(board_millis() + 700, 0x18);
@@ -308,6 +320,7 @@ int main(void)
     cmocka_unit_test_setup(test_hold_decelerates_and_resume_completes, setup),
     cmocka_unit_test_setup(test_hold_where_a_block_starts, setup),
     cmocka_unit_test_setup(test_segment_beyond_its_step_count_faults, setup),
+    cmocka_unit_test_setup(test_block_too_long_to_count_down_faults, setup),
     cmocka_unit_test_setup(test_reset_mid_move_keeps_position, setup),
     cmocka_unit_test_setup(test_backlash_not_in_position, setup),
     cmocka_unit_test_setup(test_idle_disables_drivers, setup),
