@@ -25,10 +25,11 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
   for (uint8_t i = 0; i < N_AXIS; i++) longest = max(longest, fabsf(target[i] - start[i]));
   // Pieces of at most MAX_BLOCK_DEG; a move so long that their count would
   // overflow (tiny steps per degree, huge target) is cut into the most pieces
-  // a uint16_t counts, each longer: the segment prep copes with long blocks.
+  // a uint16_t counts, each longer: the segment prep copes with long blocks
+  // (and faults on one too long to count down in a float).
   float pieces = longest / MAX_BLOCK_DEG;
   uint16_t n = (pieces < 65534.0f) ? (uint16_t)pieces + 1 : 65535;
-  for (uint16_t k = 1; k <= n; k++) {
+  for (uint16_t k = 1;; k++) {   // not k <= n: always true for n = 65535
     for (uint8_t i = 0; i < N_AXIS; i++)
       piece[i] = (k == n) ? target[i] : start[i] + (target[i] - start[i]) * k / n;
     uint8_t need = plan_backlash_blocks_needed(piece);
@@ -40,6 +41,7 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
       board_idle();
     }
     plan_buffer_line(piece, pl_data);
+    if (k == n) break;
   }
 }
 

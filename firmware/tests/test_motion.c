@@ -265,6 +265,24 @@ static void test_block_too_long_to_count_down_faults(void **state)
   expect_prep_fault("G1 X99999999999999 F1");
 }
 
+static void test_move_of_most_pieces_ends(void **state)
+{
+  // 5e7 deg: mc_line cuts it into its most pieces, 65535 (of 763 deg). Its
+  // uint16_t piece counter wrapped after the last one and the move started
+  // over from where it began, back and forth. 1e-3 steps/deg (5e4 steps)
+  // with a rate and an acceleration to match keep it to seconds.
+  h_send("$100=0.001");
+  h_send("$110=1000000000");
+  h_send("$120=10000000000");
+  h_take();
+  host_schedule_byte(board_millis() + 60000, 0x18);   // a wrapped counter runs until reset: fail, not hang
+  h_send("G1 X50000000 F1000000000");
+  assert_string_equal(h_take(), "ok\r\n");
+  assert_int_equal(sys.state, STATE_IDLE);
+  assert_int_equal(host_motor_steps[0], 50000);
+  assert_int_equal(sys_position[0], 50000);
+}
+
 static void test_reset_mid_move_keeps_position(void **state)
 {
   host_schedule_byte(board_millis() + 700, 0x18);
@@ -321,6 +339,7 @@ int main(void)
     cmocka_unit_test_setup(test_hold_where_a_block_starts, setup),
     cmocka_unit_test_setup(test_segment_beyond_its_step_count_faults, setup),
     cmocka_unit_test_setup(test_block_too_long_to_count_down_faults, setup),
+    cmocka_unit_test_setup(test_move_of_most_pieces_ends, setup),
     cmocka_unit_test_setup(test_reset_mid_move_keeps_position, setup),
     cmocka_unit_test_setup(test_backlash_not_in_position, setup),
     cmocka_unit_test_setup(test_idle_disables_drivers, setup),
