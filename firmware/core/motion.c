@@ -21,13 +21,21 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
   float start[N_AXIS];
   float piece[N_AXIS];
   float longest = 0.0f;
+  float steps = 0.0f;
   plan_get_position(start);
-  for (uint8_t i = 0; i < N_AXIS; i++) longest = max(longest, fabsf(target[i] - start[i]));
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    float d = fabsf(target[i] - start[i]);
+    longest = max(longest, d);
+    steps = max(steps, d * settings.steps_per_deg[i]);
+  }
   // Pieces of at most MAX_BLOCK_DEG; a move so long that their count would
   // overflow (tiny steps per degree, huge target) is cut into the most pieces
   // a uint16_t counts, each longer: the segment prep copes with long blocks
-  // (and faults on one too long to count down in a float).
-  float pieces = longest / MAX_BLOCK_DEG;
+  // (and faults on one too long to count down in a float). Never more pieces
+  // than steps: below one step per MAX_BLOCK_DEG a piece would move nothing,
+  // and thousands of them only keep this loop from the step queue's waits
+  // and the watchdog (65535 took seconds on the chip).
+  float pieces = min(longest / MAX_BLOCK_DEG, steps);
   uint16_t n = (pieces < 65534.0f) ? (uint16_t)pieces + 1 : 65535;
   for (uint16_t k = 1;; k++) {   // not k <= n: always true for n = 65535
     for (uint8_t i = 0; i < N_AXIS; i++)

@@ -269,9 +269,10 @@ static void test_move_of_most_pieces_ends(void **state)
 {
   // 5e7 deg: mc_line cuts it into its most pieces, 65535 (of 763 deg). Its
   // uint16_t piece counter wrapped after the last one and the move started
-  // over from where it began, back and forth. 1e-3 steps/deg (5e4 steps)
-  // with a rate and an acceleration to match keep it to seconds.
-  h_send("$100=0.001");
+  // over from where it began, back and forth. 2e-3 steps/deg (1e5 steps, so
+  // no piece is under a step) with a rate and an acceleration to match keep
+  // it to seconds.
+  h_send("$100=0.002");
   h_send("$110=1000000000");
   h_send("$120=10000000000");
   h_take();
@@ -279,8 +280,19 @@ static void test_move_of_most_pieces_ends(void **state)
   h_send("G1 X50000000 F1000000000");
   assert_string_equal(h_take(), "ok\r\n");
   assert_int_equal(sys.state, STATE_IDLE);
-  assert_int_equal(host_motor_steps[0], 50000);
-  assert_int_equal(sys_position[0], 50000);
+  assert_int_equal(host_motor_steps[0], 100000);
+  assert_int_equal(sys_position[0], 100000);
+}
+
+static void test_move_under_a_step_is_one_piece(void **state)
+{
+  // Less than a step in all, however far: one empty piece, not 65535 that
+  // kept mc_line from any wait (and the chip's watchdog) for seconds.
+  h_send("$100=0.000000000002");
+  h_send("G1 X999999999 F1");
+  assert_string_equal(h_take(), "ok\r\nok\r\n");
+  assert_int_equal(host_motor_steps[0], 0);
+  assert_null(plan_get_current_block());
 }
 
 static void test_reset_mid_move_keeps_position(void **state)
@@ -340,6 +352,7 @@ int main(void)
     cmocka_unit_test_setup(test_segment_beyond_its_step_count_faults, setup),
     cmocka_unit_test_setup(test_block_too_long_to_count_down_faults, setup),
     cmocka_unit_test_setup(test_move_of_most_pieces_ends, setup),
+    cmocka_unit_test_setup(test_move_under_a_step_is_one_piece, setup),
     cmocka_unit_test_setup(test_reset_mid_move_keeps_position, setup),
     cmocka_unit_test_setup(test_backlash_not_in_position, setup),
     cmocka_unit_test_setup(test_idle_disables_drivers, setup),
