@@ -737,24 +737,35 @@ inline int32_t max_of(const uint16_t *v, size_t n)
 
 double rim_outside(double cx, double cy, double r, int h, int w);
 
+// The peaks after the candidates down to this share of the best's votes are
+// kept apart (weak): those whose circle is cut by the frame edge are judged
+// as second spheres (preprocess.py WEAK_PEAK: the same value, and its
+// measured reason).
+constexpr double weak_peak = 0.25;
+
 // The candidates from the box sums' per-cell largest (vmax) and its bin
 // (bmax), planes of hs x ws in 16 or 32 bits: the strongest cell first, its
-// radius from the votes, then the cells near it cleared. vmax is cleared
-// there.
+// radius from the votes, then the cells near it cleared; into out those with
+// at least cand_frac of the best's votes, the weaker ones after them (down
+// to weak_peak of it) into weak. vmax is cleared there.
 template <class T>
 void peaks(T *vmax, const T *bmax, const Edges &e, const std::vector<long> &start, int nb, int hs,
-           int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out)
+           int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out,
+           std::vector<Cand> &weak)
 {
     const size_t plane = (size_t)hs * ws;
     const double sup = p->cand_gap * (double)lo;
     long best = -1;
     // a peak whose circle would be refused as cut by the frame edge is refined but does not use
-    // up one of the `candidates` places (training/preprocess.py says why); 4 x candidates at most
+    // up one of the `candidates` places (training/preprocess.py says why); 4 x candidates at most,
+    // the weaker ones included
     for (int k = 0, taken = 0; k < 4 * p->candidates && taken < p->candidates; k++) {
         const int32_t v = max_of(vmax, plane);
         const size_t ci = first_of(vmax, plane, (T)v); // the first cell holding it
-        if (v <= 0 || (best >= 0 && (double)v < p->cand_frac * (double)best)) break;
+        if (v <= 0 || (best >= 0 && (double)v < std::min(weak_peak, p->cand_frac) * (double)best))
+            break;
         if (best < 0) best = v;
+        const bool strong = (double)v >= p->cand_frac * (double)best;
         const long Yc = (long)(ci / ws), Xc = (long)(ci % ws);
         const int b = bmax[ci];
         const long r_s =
@@ -762,10 +773,11 @@ void peaks(T *vmax, const T *bmax, const Edges &e, const std::vector<long> &star
         bool cut = false;
         if (r_s >= 0) {
             const double off = (s - 1) / 2.0;
-            out.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
-            cut = rim_outside(out.back().cx, out.back().cy, out.back().r, h, w) > p->max_cut;
+            std::vector<Cand> &to = strong ? out : weak;
+            to.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
+            cut = rim_outside(to.back().cx, to.back().cy, to.back().r, h, w) > p->max_cut;
         }
-        if (!cut) taken++;
+        if (strong && !cut) taken++;
         const long R = ifloor(sup) + 1;
         for (long Y = std::max(0L, Yc - R); Y <= std::min((long)hs - 1, Yc + R); Y++)
             for (long X = std::max(0L, Xc - R); X <= std::min((long)ws - 1, Xc + R); X++) {
@@ -784,7 +796,8 @@ template <class T>
 void vote_peaks(Acc<T> &a, const Edges &e, const std::vector<double> &ux,
                 const std::vector<double> &uy, const std::vector<double> &srs,
                 const std::vector<int32_t> &boff, const std::vector<long> &start, int nb, int hs,
-                int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out)
+                int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out,
+                std::vector<Cand> &weak)
 {
     const size_t plane = (size_t)hs * ws, nv = srs.size();
     // the accumulator is left zero after each frame (box_max clears it)
@@ -808,12 +821,13 @@ void vote_peaks(Acc<T> &a, const Edges &e, const std::vector<double> &ux,
     box_max(acc, nb, hs, ws, a.pair.data(), a.h3.data(), a.vmax.data(), a.bmax.data());
     // the slots of the votes outside
     std::fill(acc + (size_t)nb * plane, acc + (size_t)nb * plane + nv, (T)0);
-    peaks(a.vmax.data(), a.bmax.data(), e, start, nb, hs, ws, s, h, w, lo, p, out);
+    peaks(a.vmax.data(), a.bmax.data(), e, start, nb, hs, ws, s, h, w, lo, p, out, weak);
 }
 
-// Candidate circles, strongest first; *s_out the reduction.
+// Candidate circles, strongest first; the weaker peaks after them into weak
+// (weak_peak); *s_out the reduction.
 std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
-                         double rmin, double rmax, int *s_out)
+                         double rmin, double rmax, int *s_out, std::vector<Cand> &weak)
 {
     std::vector<Cand> out;
     const int s = std::max(1, std::min(h, w) / p->coarse_size);
@@ -873,9 +887,9 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     thread_local std::vector<double> ux, uy;
     unit_gradients(e.gx.data(), e.gy.data(), e.n, ux, uy);
     if (narrow)
-        vote_peaks(scratch.a16, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out);
+        vote_peaks(scratch.a16, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out, weak);
     else
-        vote_peaks(scratch.a32, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out);
+        vote_peaks(scratch.a32, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out, weak);
     return out;
 }
 
@@ -2483,6 +2497,29 @@ std::vector<double> ray_dirs(int k)
     return d;
 }
 
+// The fits of the weaker coarse peaks (weak_peak) whose circle is cut by the
+// frame edge and whose centre lies outside sphere a's circle (s: the coarse
+// scale), added to all (their support rays to bank) and, when well supported
+// and of a sphere's size, to fits (preprocess.py _cut_peak_fits and the
+// lines after it).
+static void cut_peak_fits(const Frame &f, const std::vector<double> &dirs,
+                          const std::vector<Cand> &weak, int s, const Found &a, const pp_params *p,
+                          std::vector<Found> &all, std::vector<Rays> &bank,
+                          std::vector<size_t> &fits, double rmin, double rmax)
+{
+    for (const Cand &c : weak) {
+        if (!(rim_outside(c.cx, c.cy, c.r, f.h, f.w) > 0) ||
+            (c.cx - a.cx) * (c.cx - a.cx) + (c.cy - a.cy) * (c.cy - a.cy) < a.r * a.r)
+            continue;
+        // a slot for its rays and one more for grow's tries
+        if (bank.size() < all.size() + 2) bank.resize(all.size() + 2);
+        Found fo;
+        if (!fine(f, dirs, c, s, p, &fo, &bank[all.size()])) continue;
+        all.push_back(fo);
+        if (fo.support >= p->min_support && sized(fo.r, rmin, rmax)) fits.push_back(all.size() - 1);
+    }
+}
+
 static double expected_radius(const pp_camera *cam)
 {
     const double f = cam->focal_mm / cam->pixel_mm;
@@ -2504,7 +2541,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         rmax = p->r_max_frac * m;
     }
     int s = 1;
-    const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, &s);
+    std::vector<Cand> weak_peaks;
+    const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, &s, weak_peaks);
     // the ray directions, computed again only when the count changes
     thread_local std::vector<double> dirs;
     if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
@@ -2558,7 +2596,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         no_sphere(f, dirs, all, p, rmin, rmax, err, errlen);
         return -1;
     }
-    const Found &a = all[fits[(size_t)ia]];
+    // a copy: the weaker peaks' fits are added to all below
+    const Found a = all[fits[(size_t)ia]];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
         // a circle darker inside than at its edge (a disk of the clutter) is no cut sphere:
@@ -2569,6 +2608,9 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
             no_sphere(f, dirs, all, p, rmin, rmax, err, errlen);
         return -1;
     }
+    // the weaker coarse peaks' circles cut by the frame edge judged with the
+    // fits (weak_peak)
+    cut_peak_fits(f, dirs, weak_peaks, s, a, p, all, bank, fits, rmin, rmax);
     // another well supported circle of about its size, neither centre inside
     // the other circle, its inside not flat where the sphere's is shaded: a
     // second sphere
