@@ -203,11 +203,13 @@ TEXTURE_TOL = 1.0
 # darkens over a dark backdrop few of those: its coarse peak can fall below cand_frac of the
 # sphere's and get no fit at all (a held-out `refuse` frame of seed 462: a second sphere a quarter
 # outside the left edge, 205 votes against the sphere's 636, answered with a confident pose). The
-# peaks after the candidates, down to WEAK_PEAK of the best's votes, whose coarse circle is cut by
-# the frame edge and whose centre lies outside the sphere's circle, are fitted after the sphere is
-# chosen and judged as second spheres as the other fits are (that frame's: support 0.56); never as
-# the sphere. On the 9 400 development frames (seeds 418-429 and 432-441, two-edge 500-502,
-# rig-photo 501-503) no frame changes, answered or refused, and no circle moves; those peaks
+# peaks after the candidates, down to WEAK_PEAK of the best's votes (within the same 4 x
+# candidates peaks, so none when `candidates` peaks not cut by the frame edge came first), whose
+# coarse circle is cut by the frame edge and whose centre lies outside the sphere's circle, are
+# fitted after the sphere is chosen and judged as second spheres as the other fits are (that
+# frame's: support 0.56); never as the sphere. On the 9 400 development frames (seeds 418-429 and
+# 432-441, two-edge 500-502, rig-photo 501-503) no frame changes, answered or refused, and no
+# sphere's circle moves (one refused frame's error names another second circle); those peaks
 # judged the same way in the frame too (not only cut by its edge), 10 frames with a clear sphere
 # are refused by clutter disks beside it. A constant of the algorithm, not a model parameter;
 # crop2.cpp has the same (weak_peak).
