@@ -13,6 +13,18 @@
 
 #define ACCEL_DEG_MIN2 (90.0f * 3600.0f)
 
+// Linked with -Wl,--wrap=plan_buffer_line (Makefile): every call into the
+// planner from outside planner.c (mc_line's pieces, this file's queue())
+// passes here and is counted.
+static uint32_t buffer_line_calls;
+
+uint8_t __real_plan_buffer_line(const float *target, const plan_line_data_t *pl_data);
+uint8_t __wrap_plan_buffer_line(const float *target, const plan_line_data_t *pl_data)
+{
+  buffer_line_calls++;
+  return __real_plan_buffer_line(target, pl_data);
+}
+
 static int setup(void **state)
 {
   h_new_chip(state);
@@ -258,8 +270,12 @@ static void test_segment_beyond_its_step_count_faults(void **state)
 static void test_block_too_long_to_count_down_faults(void **state)
 {
   // 1e-6 steps/deg lets a target of 1e14 deg through (1e8 steps), and mc_line
-  // cuts it into 65535 blocks of 1.5e9 deg, where a float step is 128 deg:
-  // more than the longest segment moves at 1 deg/min. The prep spun there.
+  // cuts it into 65535 blocks of 1.5e9 deg, where a float step is 128 deg.
+  // The prep subtracts each part of a segment from the remaining distance on
+  // its own, and at 1 deg/min even the longest segment's parts move at most
+  // 43.7 deg (its last part, 2^18 x 10 ms; 87 deg in all), under half a
+  // float step (64 deg): each rounds away and the block never shrinks. The
+  // prep spun there.
   h_send("$100=0.000001");
   h_take();
   expect_prep_fault("G1 X99999999999999 F1");
@@ -277,8 +293,10 @@ static void test_move_of_most_pieces_ends(void **state)
   h_send("$120=10000000000");
   h_take();
   host_schedule_byte(board_millis() + 60000, 0x18);   // a wrapped counter runs until reset: fail, not hang
+  buffer_line_calls = 0;
   h_send("G1 X50000000 F1000000000");
   assert_string_equal(h_take(), "ok\r\n");
+  assert_int_equal(buffer_line_calls, 65535);
   assert_int_equal(sys.state, STATE_IDLE);
   assert_int_equal(host_motor_steps[0], 100000);
   assert_int_equal(sys_position[0], 100000);
@@ -287,9 +305,13 @@ static void test_move_of_most_pieces_ends(void **state)
 static void test_move_under_a_step_is_one_piece(void **state)
 {
   // Less than a step in all, however far: one empty piece, not 65535 that
-  // kept mc_line from any wait (and the chip's watchdog) for seconds.
+  // kept mc_line from any wait (and the chip's watchdog) for seconds. The
+  // planner drops empty pieces and the host spends no simulated time on
+  // them, so only their count tells.
   h_send("$100=0.000000000002");
+  buffer_line_calls = 0;
   h_send("G1 X999999999 F1");
+  assert_int_equal(buffer_line_calls, 1);
   assert_string_equal(h_take(), "ok\r\nok\r\n");
   assert_int_equal(host_motor_steps[0], 0);
   assert_null(plan_get_current_block());
