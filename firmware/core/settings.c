@@ -214,10 +214,12 @@ uint8_t settings_store_global_setting(uint8_t parameter, float value)
             break;
           case 2:
             if (value <= 0.0f) return STATUS_NEGATIVE_VALUE;
-            // Out of range (config.h), as $0=101. Decimal input reads a float step
-            // or two off ("0.10" lands below 0.1f): only what is clearly below
-            // is refused, the planner raises the rest to the floor.
-            if (value < MINIMUM_ACCELERATION * 0.99999f) return STATUS_INVALID_STATEMENT;
+            // Out of range (config.h), as $0=101. Decimal input reads up to a
+            // float step off ("0.10" lands a step below 0.1f): two float steps
+            // under the floor (0.0999999866f, folded at compile time; avr-libc
+            // has no nextafterf) are let through and raised by the planner,
+            // "0.09999999" (three steps under) and lower are refused.
+            if (value < MINIMUM_ACCELERATION * 0.9999998f) return STATUS_INVALID_STATEMENT;
             settings.acceleration[idx] = value;
             break;
           case 3: settings.max_travel[idx] = value; break;

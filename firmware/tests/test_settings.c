@@ -94,6 +94,14 @@ static void test_validation(void **state)
 {
   assert_int_equal(settings_store_global_setting(0, 2), STATUS_SETTING_STEP_PULSE_MIN);
   assert_int_equal(settings_store_global_setting(0, 101), STATUS_INVALID_STATEMENT);
+  // The rest of error:3's ranges (doc/error_codes.csv): $1 above 255, any
+  // of $0-$27 above 65535; a mask above 255 is masked.
+  assert_int_equal(settings_store_global_setting(1, 256), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(26, 65536), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(11, 65536), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(3, 65536), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(3, 256), STATUS_OK);
+  assert_int_equal(settings.dir_invert_mask, 0);
   assert_int_equal(settings_store_global_setting(110, 4000), STATUS_MAX_STEP_RATE_EXCEEDED);
   assert_int_equal(settings_store_global_setting(100, 2000), STATUS_MAX_STEP_RATE_EXCEEDED);
   assert_int_equal(settings_store_global_setting(120, 0), STATUS_NEGATIVE_VALUE);
@@ -135,6 +143,25 @@ static void test_acceleration_floor(void **state)
   assert_int_equal(settings_store_global_setting(120, MINIMUM_ACCELERATION), STATUS_OK);
   assert_float_equal(settings.acceleration[0], MINIMUM_ACCELERATION, 0);
   assert_int_equal(settings_store_global_setting(121, nextafterf(MINIMUM_ACCELERATION, 0)), STATUS_OK);
+  // Two float steps under are let through, three are refused.
+  float two_under = nextafterf(nextafterf(MINIMUM_ACCELERATION, 0), 0);
+  assert_int_equal(settings_store_global_setting(121, two_under), STATUS_OK);
+  assert_int_equal(settings_store_global_setting(121, nextafterf(two_under, 0)), STATUS_INVALID_STATEMENT);
+  // As typed: the floor however many zeros follow, and nothing visibly below.
+  static const char *const typed[] = {"0.1", "0.10", "0.100", "0.1000", "0.10000000", ".1"};
+  for (size_t i = 0; i < sizeof(typed) / sizeof(typed[0]); i++) {
+    uint8_t at = 0;
+    float v;
+    assert_true(read_float(typed[i], &at, &v));
+    assert_int_equal(settings_store_global_setting(122, v), STATUS_OK);
+  }
+  static const char *const below[] = {"0.099999", "0.09999999"};
+  for (size_t i = 0; i < sizeof(below) / sizeof(below[0]); i++) {
+    uint8_t at = 0;
+    float v;
+    assert_true(read_float(below[i], &at, &v));
+    assert_int_equal(settings_store_global_setting(122, v), STATUS_INVALID_STATEMENT);
+  }
 }
 
 // doc/error_codes.csv and doc/alarm_codes.csv list exactly the codes of codes.h.
