@@ -42,9 +42,11 @@
 // distance on its own. From rest, a segment stretched to MAX_SEGMENT_MIN
 // (stepper.c) ends with a part of t = 2^18 DT_SEGMENT = 43.7 min that moves
 // 1.5 a t^2; unless that exceeds half the float step of a MAX_BLOCK_DEG block
-// (2^-15 deg), i.e. a > 1.1e-8 deg/min^2 = 3e-12 deg/s^2, no segment ever
-// moves, the speed gained per segment is lost to rounding as well, and the
-// prep spins. 0.1 deg/s^2 is far above that (a 720-deg block from rest moves
+// (2^-15 deg), i.e. a > 1.1e-8 deg/min^2 = 3e-12 deg/s^2, the first segments
+// move nothing and progress becomes unboundedly slow as a falls: not exactly
+// zero (the speed still grows by a t each segment, exactly so from rest, and
+// stops growing only after ~2^24 segments), but the prep all but spins.
+// 0.1 deg/s^2 is far above that (a 720-deg block from rest moves
 // within 40 ms) and far below what a stage needs to move in useful time (it
 // takes 5 minutes to reach 30 deg/s).
 #define MINIMUM_ACCELERATION 0.1f

@@ -31,10 +31,11 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
   // Pieces of at most MAX_BLOCK_DEG; a move so long that their count would
   // overflow (tiny steps per degree, huge target) is cut into the most pieces
   // a uint16_t counts, each longer: the segment prep copes with long blocks
-  // (and faults on one too long to count down in a float). Never more pieces
-  // than steps: below one step per MAX_BLOCK_DEG a piece would move nothing,
-  // and thousands of them only keep this loop from the step queue's waits
-  // and the watchdog (65535 took seconds on the chip).
+  // (and faults on one too long to count down in a float). At most one more
+  // piece than the move has steps (n = floor(steps) + 1, so one piece for a
+  // move under a step): below one step per MAX_BLOCK_DEG a piece would move
+  // nothing, and thousands of them only keep this loop from the step queue's
+  // waits and the watchdog (65535 took seconds on the chip).
   float pieces = min(longest / MAX_BLOCK_DEG, steps);
   uint16_t n = (pieces < 65534.0f) ? (uint16_t)pieces + 1 : 65535;
   for (uint16_t k = 1;; k++) {   // not k <= n: always true for n = 65535

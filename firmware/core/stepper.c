@@ -473,8 +473,11 @@ void st_prep_buffer(void)
       if (mm_remaining == pl_block->millimeters && dt_max >= MAX_SEGMENT_MIN) {
         // The longest segment moved nothing: the block is too long for its
         // speed to count its distance down in a float (a tiny $100 and a huge
-        // target, cut by mc_line into blocks far over MAX_BLOCK_DEG), and no
-        // later segment would either.
+        // target, cut by mc_line into blocks far over MAX_BLOCK_DEG). At
+        // cruise or decelerating no later segment would move either;
+        // accelerating, each adds speed until one moves, but after
+        // impractically many (the acceleration and feed floors leave this
+        // only to absurdly long blocks).
         st_prep_fault();
         return;
       }
