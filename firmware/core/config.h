@@ -50,6 +50,14 @@
 // within 40 ms) and far below what a stage needs to move in useful time (it
 // takes 5 minutes to reach 30 deg/s).
 #define MINIMUM_ACCELERATION 0.1f
+// Coarsest drive, steps/deg: $100-$102 below it are refused (error:3). The
+// segment prep covers at most MAX_SEGMENT_MIN (60 min) of motion per pass, 60
+// deg at MINIMUM_FEED_RATE, and a pass that makes no step is followed at once
+// by another: at 0.01 steps/deg (a step every 100 deg) the second makes one.
+// At 1e-9 steps/deg it passed millions of times before a step, holding the
+// main loop (10 s of host CPU for one fuzz input). A full-step 1.8-deg motor
+// driving the stage directly has 0.56 steps/deg.
+#define MINIMUM_STEPS_PER_DEG 0.01f
 #define N_COORDINATE_SYSTEM 6         // G54..G59
 #define N_DECIMAL_COORDVALUE 3        // positions printed with 3 decimals (deg)
 #define N_DECIMAL_SETTINGVALUE 3

@@ -195,6 +195,15 @@ static uint8_t settings_step_rate_ok(float steps_per_deg, float max_rate)
   return steps_per_deg * max(max_rate, MINIMUM_FEED_RATE) <= MAX_STEP_RATE_HZ * 60.0f;
 }
 
+// Below a floor (config.h), as $0=101 is above its range. Decimal input reads
+// up to a float step off ("0.10" lands a step below 0.1f): two float steps
+// under the floor (floor * 0.9999998f, folded at compile time; avr-libc has no
+// nextafterf) are let through, three and more are below it.
+static uint8_t below_floor(float value, float floor)
+{
+  return value < floor * 0.9999998f;
+}
+
 uint8_t settings_store_global_setting(uint8_t parameter, float value)
 {
   if (value < 0.0f) return STATUS_NEGATIVE_VALUE;
@@ -206,6 +215,7 @@ uint8_t settings_store_global_setting(uint8_t parameter, float value)
         switch (set_idx) {
           case 0:
             if (!settings_step_rate_ok(value, settings.max_rate[idx]) || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+            if (below_floor(value, MINIMUM_STEPS_PER_DEG)) return STATUS_INVALID_STATEMENT;
             settings.steps_per_deg[idx] = value;
             break;
           case 1:
@@ -214,12 +224,8 @@ uint8_t settings_store_global_setting(uint8_t parameter, float value)
             break;
           case 2:
             if (value <= 0.0f) return STATUS_NEGATIVE_VALUE;
-            // Out of range (config.h), as $0=101. Decimal input reads up to a
-            // float step off ("0.10" lands a step below 0.1f): two float steps
-            // under the floor (0.0999999866f, folded at compile time; avr-libc
-            // has no nextafterf) are let through and raised by the planner,
-            // "0.09999999" (three steps under) and lower are refused.
-            if (value < MINIMUM_ACCELERATION * 0.9999998f) return STATUS_INVALID_STATEMENT;
+            // the two float steps let through are raised by the planner
+            if (below_floor(value, MINIMUM_ACCELERATION)) return STATUS_INVALID_STATEMENT;
             settings.acceleration[idx] = value;
             break;
           case 3: settings.max_travel[idx] = value; break;

@@ -130,6 +130,24 @@ static void test_validation(void **state)
   assert_int_equal(settings.step_invert_mask, 7);
 }
 
+static void test_steps_per_deg_floor(void **state)
+{
+  // Below MINIMUM_STEPS_PER_DEG the segment prep passes for long without a
+  // step: refused as out of range; 0 keeps error:12.
+  assert_int_equal(settings_store_global_setting(100, 1e-9f), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(101, MINIMUM_STEPS_PER_DEG * 0.9f), STATUS_INVALID_STATEMENT);
+  assert_int_equal(settings_store_global_setting(102, 0), STATUS_MAX_STEP_RATE_EXCEEDED);
+  for (int i = 0; i < N_AXIS; i++) assert_float_equal(settings.steps_per_deg[i], 800.0f, 0);
+  uint8_t at = 0;
+  float v;
+  assert_true(read_float("0.01", &at, &v));
+  assert_int_equal(settings_store_global_setting(100, v), STATUS_OK);
+  assert_float_equal(settings.steps_per_deg[0], v, 0);
+  at = 0;
+  assert_true(read_float("0.0099999", &at, &v));
+  assert_int_equal(settings_store_global_setting(101, v), STATUS_INVALID_STATEMENT);
+}
+
 static void test_acceleration_floor(void **state)
 {
   // Below MINIMUM_ACCELERATION the segment prep never gets a move going:
@@ -216,6 +234,7 @@ int main(void)
     cmocka_unit_test_setup(test_coord_records, setup),
     cmocka_unit_test_setup(test_validation, setup),
     cmocka_unit_test_setup(test_acceleration_floor, setup),
+    cmocka_unit_test_setup(test_steps_per_deg_floor, setup),
     cmocka_unit_test(test_code_tables),
   };
   return cmocka_run_group_tests_name("settings", tests, NULL, NULL);
