@@ -472,7 +472,8 @@ void st_prep_buffer(void)
       }
       if (mm_remaining == pl_block->millimeters && dt_max >= MAX_SEGMENT_MIN) {
         // The longest segment moved nothing: the block is too long for its
-        // speed to count its distance down in a float (a tiny $100 and a huge
+        // speed to count its distance down in a float (a $100 far below
+        // MINIMUM_STEPS_PER_DEG, from an older firmware's EEPROM, and a huge
         // target, cut by mc_line into blocks far over MAX_BLOCK_DEG). At
         // cruise or decelerating no later segment would move either;
         // accelerating, each adds speed until one moves, but after
