@@ -775,7 +775,8 @@ void peaks(T *vmax, const T *bmax, const Edges &e, const std::vector<long> &star
             const double off = (s - 1) / 2.0;
             std::vector<Cand> &to = strong ? out : weak;
             to.push_back({(double)(Xc * s) + off, (double)(Yc * s) + off, (double)(r_s * s), v});
-            cut = rim_outside(to.back().cx, to.back().cy, to.back().r, h, w) > p->max_cut;
+            // only a candidate's cut decides its place (preprocess.py _coarse, likewise)
+            cut = strong && rim_outside(to.back().cx, to.back().cy, to.back().r, h, w) > p->max_cut;
         }
         if (strong && !cut) taken++;
         const long R = ifloor(sup) + 1;
