@@ -35,9 +35,17 @@
 // remaining length is a float, and at the slowest feed a 10 ms segment must
 // still move it by more than its rounding step.
 #define MAX_BLOCK_DEG 720.0f
+// ... and of at most this many steps on any axis: the segment prep counts a
+// block's steps down in a float, exact only up to 2^24 (above, a block's
+// count was rounded and the motor ran up to 64 steps short or long). The
+// margin below 2^24 covers the rounding of the pieces' ends (float degrees:
+// ~60 steps at MAX_TARGET_STEPS). It also keeps the step ISR's doubled
+// Bresenham sums (up to 4x a block's steps) inside uint32_t.
+#define MAX_BLOCK_STEPS 16000000.0f
 #define MAX_TARGET_STEPS 1.0e9f       // |target| in steps; keeps step deltas inside int32 (error:33 beyond)
 // Slowest acceleration, deg/s^2: $120-$122 below it are refused (error:3),
-// and the planner raises a lower one (an EEPROM from an older firmware) to it.
+// raised to it when loaded from an older firmware's EEPROM (settings_init),
+// and the planner raises a lower one to it.
 // The segment prep subtracts each part of a segment from the block's remaining
 // distance on its own. From rest, a segment stretched to MAX_SEGMENT_MIN
 // (stepper.c) ends with a part of t = 2^18 DT_SEGMENT = 43.7 min that moves
@@ -50,7 +58,8 @@
 // within 40 ms) and far below what a stage needs to move in useful time (it
 // takes 5 minutes to reach 30 deg/s).
 #define MINIMUM_ACCELERATION 0.1f
-// Coarsest drive, steps/deg: $100-$102 below it are refused (error:3). The
+// Coarsest drive, steps/deg: $100-$102 below it are refused (error:3), and
+// raised to it when loaded from an older firmware's EEPROM. The
 // segment prep covers at most MAX_SEGMENT_MIN (60 min) of motion per pass, 60
 // deg at MINIMUM_FEED_RATE, and a pass that makes no step is followed at once
 // by another: at 0.01 steps/deg (a step every 100 deg) the second makes one.

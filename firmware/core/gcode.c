@@ -301,6 +301,9 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
     pl_data.feed_rate = f;
     pl_data.condition = PL_COND_FLAG_JOG | PL_COND_FLAG_NO_FEED_OVERRIDE;
     mc_line(xyz, &pl_data);
+    // Cancelled while its line was queued: the cancel's end sets the parser
+    // to where the stage stopped (not yet, if it is still slowing down).
+    if (sys.jog_cancelled) return STATUS_OK;
     if (sys.state == STATE_IDLE && !sys.abort) {
       if (plan_get_current_block() != NULL) {
         sys.state = STATE_JOG;

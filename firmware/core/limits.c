@@ -109,6 +109,10 @@ static uint8_t limits_homing_move(uint8_t mask, float distance, float rate, uint
     }
     st_prep_buffer();
     board_idle();
+    // An alarm raised meanwhile (the segment prep's fault, ALARM:10) has
+    // stopped the motors: no switch or end of move will come, so end here
+    // with it rather than wait for a reset (which would say ALARM:6).
+    if (sys_rt_exec_alarm) { alarm = sys_rt_exec_alarm; break; }
     uint8_t rt = sys_rt_exec_state;
     if (rt & EXEC_RESET) { alarm = EXEC_ALARM_HOMING_FAIL_RESET; break; }
     if (rt & EXEC_CYCLE_STOP) {

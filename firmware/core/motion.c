@@ -13,6 +13,8 @@
 
 void mc_line(const float *target, plan_line_data_t *pl_data)
 {
+  uint8_t jog = pl_data->condition & PL_COND_FLAG_JOG;
+  if (jog) sys.jog_cancelled = 0;
   if (sys.state != STATE_JOG && bit_istrue(settings.flags, BITFLAG_SOFT_LIMIT_ENABLE)) {
     limits_soft_check(target);
     if (sys.abort || sys.state == STATE_ALARM) return;
@@ -36,7 +38,10 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
   // move under a step): below one step per MAX_BLOCK_DEG a piece would move
   // nothing, and thousands of them only keep this loop from the step queue's
   // waits and the watchdog (65535 took seconds on the chip).
-  float pieces = min(longest / MAX_BLOCK_DEG, steps);
+  // Fine drives need more pieces: none may exceed MAX_BLOCK_STEPS, or the
+  // prep's float step count rounds (at most 2e9 / MAX_BLOCK_STEPS = 125 pieces,
+  // as targets stay within MAX_TARGET_STEPS).
+  float pieces = max(min(longest / MAX_BLOCK_DEG, steps), steps / MAX_BLOCK_STEPS);
   uint16_t n = (pieces < 65534.0f) ? (uint16_t)pieces + 1 : 65535;
   for (uint16_t k = 1;; k++) {   // not k <= n: always true for n = 65535
     for (uint8_t i = 0; i < N_AXIS; i++)
@@ -45,6 +50,14 @@ void mc_line(const float *target, plan_line_data_t *pl_data)
     for (;;) {
       protocol_execute_realtime();
       if (sys.abort) return;
+      // A jog cancel (0x85, or '!' while jogging) taken while this jog line
+      // waits for room, or still stopping when it came: the rest of the line
+      // goes too. Queued after the cancel's flush it would run as a new jog.
+      if (jog && (sys.jog_cancelled || (sys.suspend & SUSPEND_JOG_CANCEL))) {
+        sys.jog_cancelled = 1;   // for the caller: keep the parser where the stage stops
+        return;
+      }
+      // Full: start what is queued (a jog as a jog, protocol.c) to make room.
       if (plan_get_block_buffer_available() < need) protocol_auto_cycle_start();
       else break;
       board_idle();

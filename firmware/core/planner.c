@@ -264,7 +264,8 @@ static uint8_t plan_queue_block(const int32_t *delta_steps, float feed_rate, uin
   block->millimeters = convert_delta_vector_to_unit_vector(unit_vec);
   float accel[N_AXIS];
   // deg/s^2 -> deg/min^2, raised to the floor as slow feeds are (config.h: a
-  // lower one, left in EEPROM by an older firmware, would stall the segment prep).
+  // lower one would stall the segment prep; settings_init raises one left in
+  // EEPROM by an older firmware, this the float steps under that $120 lets through).
   for (uint8_t i = 0; i < N_AXIS; i++) accel[i] = max(settings.acceleration[i], MINIMUM_ACCELERATION) * 3600.0f;
   block->acceleration = limit_value_by_axis_maximum(accel, unit_vec);
   block->rapid_rate = limit_value_by_axis_maximum(settings.max_rate, unit_vec);

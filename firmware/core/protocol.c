@@ -232,7 +232,10 @@ static void protocol_exec_rt_system(void)
           if (!(sys.suspend & (SUSPEND_MOTION_CANCEL | SUSPEND_JOG_CANCEL))) {
             st_update_plan_block_parameters();
             sys.step_control = STEP_CONTROL_EXECUTE_HOLD;
-            if (sys.state == STATE_JOG) sys.suspend |= SUSPEND_JOG_CANCEL;
+            if (sys.state == STATE_JOG) {
+              sys.suspend |= SUSPEND_JOG_CANCEL;
+              sys.jog_cancelled = 1;
+            }
           }
         }
         if (sys.state == STATE_IDLE) sys.suspend = SUSPEND_HOLD_COMPLETE;
@@ -247,9 +250,12 @@ static void protocol_exec_rt_system(void)
       if (!(rt_exec & (EXEC_FEED_HOLD | EXEC_MOTION_CANCEL))) {
         if (sys.state == STATE_IDLE || (sys.state & STATE_HOLD && sys.suspend & SUSPEND_HOLD_COMPLETE)) {
           sys.step_control = STEP_CONTROL_NORMAL_OP;
-          if (plan_get_current_block() && !(sys.suspend & SUSPEND_MOTION_CANCEL)) {
+          plan_block_t *block = plan_get_current_block();
+          if (block && !(sys.suspend & SUSPEND_MOTION_CANCEL)) {
             sys.suspend = SUSPEND_DISABLE;
-            sys.state = STATE_CYCLE;
+            // A jog too long for the planner starts here, from mc_line's
+            // wait for room: it stays a jog (0x85 cancels it, G-code waits).
+            sys.state = (block->condition & PL_COND_FLAG_JOG) ? STATE_JOG : STATE_CYCLE;
             st_prep_buffer();
             st_wake_up();
           } else {

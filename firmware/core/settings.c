@@ -173,6 +173,34 @@ void settings_apply(void)
   limits_init();
 }
 
+// Below a floor (config.h), as $0=101 is above its range. Decimal input reads
+// up to a float step off ("0.10" lands a step below 0.1f): two float steps
+// under the floor (floor * 0.9999998f, folded at compile time; avr-libc has no
+// nextafterf) are let through, three and more are below it (and NaN).
+static uint8_t below_floor(float value, float floor)
+{
+  return !(value >= floor * 0.9999998f);
+}
+
+// A record written before the floors (config.h) can hold $100-$102 below
+// MINIMUM_STEPS_PER_DEG or $120-$122 below MINIMUM_ACCELERATION, which the
+// settings check refuses now. Those are raised to the floor, not taken as a
+// corrupt record: restoring defaults would also drop the direction and limit
+// inversions, homing and travel the stage was set up with, and be reported
+// as a CRC failure it was not. The planner already used the acceleration
+// floor, so motion is unchanged and '$$' now reports what is used; no drive
+// is that coarse (a step per 100 deg), and below it the segment prep passed
+// for long without a step. Exactly the values the check refuses (zero and
+// NaN too); one it let through stays as entered. Only in RAM: the next
+// stored setting writes the raised values.
+static void settings_raise_to_floors(void)
+{
+  for (uint8_t i = 0; i < N_AXIS; i++) {
+    if (below_floor(settings.steps_per_deg[i], MINIMUM_STEPS_PER_DEG)) settings.steps_per_deg[i] = MINIMUM_STEPS_PER_DEG;
+    if (below_floor(settings.acceleration[i], MINIMUM_ACCELERATION)) settings.acceleration[i] = MINIMUM_ACCELERATION;
+  }
+}
+
 void settings_init(void)
 {
   settings_record_t rec;
@@ -182,6 +210,7 @@ void settings_init(void)
     settings_restore(SETTINGS_RESTORE_ALL);
   } else {
     memcpy(&settings, &rec.s, sizeof(settings));
+    settings_raise_to_floors();
     settings_apply();
   }
 }
@@ -193,15 +222,6 @@ void settings_init(void)
 static uint8_t settings_step_rate_ok(float steps_per_deg, float max_rate)
 {
   return steps_per_deg * max(max_rate, MINIMUM_FEED_RATE) <= MAX_STEP_RATE_HZ * 60.0f;
-}
-
-// Below a floor (config.h), as $0=101 is above its range. Decimal input reads
-// up to a float step off ("0.10" lands a step below 0.1f): two float steps
-// under the floor (floor * 0.9999998f, folded at compile time; avr-libc has no
-// nextafterf) are let through, three and more are below it.
-static uint8_t below_floor(float value, float floor)
-{
-  return value < floor * 0.9999998f;
 }
 
 uint8_t settings_store_global_setting(uint8_t parameter, float value)

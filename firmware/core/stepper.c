@@ -303,6 +303,8 @@ void st_prep_buffer(void)
         // at half an event, so a one-step block steps instead of rounding to none.
         for (uint8_t i = 0; i < N_AXIS; i++) st_prep_block->steps[i] = pl_block->steps[i] << 1;
         st_prep_block->step_event_count = pl_block->step_event_count << 1;
+        // Exact for mc_line's blocks (at most MAX_BLOCK_STEPS); only a homing
+        // move, which homing's own position setting follows, can be longer.
         prep.steps_remaining = (float)pl_block->step_event_count;
         prep.step_per_mm = prep.steps_remaining / pl_block->millimeters;
         prep.req_mm_increment = REQ_MM_INCREMENT_SCALAR / prep.step_per_mm;
@@ -473,8 +475,9 @@ void st_prep_buffer(void)
       if (mm_remaining == pl_block->millimeters && dt_max >= MAX_SEGMENT_MIN) {
         // The longest segment moved nothing: the block is too long for its
         // speed to count its distance down in a float (a $100 far below
-        // MINIMUM_STEPS_PER_DEG, from an older firmware's EEPROM, and a huge
-        // target, cut by mc_line into blocks far over MAX_BLOCK_DEG). At
+        // MINIMUM_STEPS_PER_DEG, as an older firmware's EEPROM held before
+        // settings_init raised it, and a huge target, cut by mc_line into
+        // blocks far over MAX_BLOCK_DEG). At
         // cruise or decelerating no later segment would move either;
         // accelerating, each adds speed until one moves, but after
         // impractically many (the acceleration and feed floors leave this

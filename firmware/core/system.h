@@ -55,6 +55,7 @@ typedef struct {
   uint8_t report_ovr_counter;
   uint8_t f_override;        // feed override, percent (10..200)
   uint8_t r_override;        // rapid override, percent (100, 50, 25)
+  uint8_t jog_cancelled;     // a jog cancel was taken: mc_line stops queueing the jog line it is in
 } system_t;
 
 extern system_t sys;

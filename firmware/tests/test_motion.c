@@ -150,7 +150,8 @@ static void test_floor_acceleration_move_ends(void **state)
 static void test_acceleration_below_floor_is_raised(void **state)
 {
   // An EEPROM written before the floor may hold a slower acceleration ($120
-  // refuses it now). The planner plans with the floor, and the move ends:
+  // refuses it now; settings_init raises it, test_settings). The planner too
+  // plans with the floor, and the move ends:
   // 1 deg as a triangle, 2 sqrt(1 / 0.1) = 6.3 s (within 3 %, as above).
   settings.acceleration[0] = 5e-26f;
   host_schedule_byte(board_millis() + 60000, 0x18);   // as above
@@ -275,10 +276,39 @@ static void test_block_too_long_to_count_down_faults(void **state)
   // its own, and at 1 deg/min even the longest segment's parts move at most
   // 43.7 deg (its last part, 2^18 x 10 ms; 87 deg in all), under half a
   // float step (64 deg): each rounds away and the block never shrinks. The
-  // prep spun there. $100 refuses so coarse a drive now (MINIMUM_STEPS_PER_DEG);
-  // an EEPROM from an older firmware can still hold one.
+  // prep spun there. $100 refuses so coarse a drive now (MINIMUM_STEPS_PER_DEG)
+  // and settings_init raises one an older firmware's EEPROM holds: the fault
+  // stays as a guard.
   settings.steps_per_deg[0] = 0.000001f;
   expect_prep_fault("G1 X99999999999999 F1");
+}
+
+static void test_fault_while_homing_is_reported(void **state)
+{
+  // The same fault in a homing seek (1.5 deg of travel, as those settings
+  // need, at 1e9 steps/deg), here after ~65 ms of accelerating at 0.1 deg/s^2
+  // (the first segments count fewer steps). The prep stopped the motors, but
+  // the homing loop only looked for a switch, the end of the move or a
+  // reset: it waited for the reset, which said ALARM:6, and the fault came
+  // only after the banner. Now the homing ends on the alarm, reported at
+  // once as elsewhere (then a reset to continue).
+  h_send("$22=1");
+  h_send("$120=0.1");
+  h_take();
+  settings.max_travel[0] = 1.0f;
+  settings.max_rate[0] = 0.001f;
+  settings.steps_per_deg[0] = 1e9f;
+  host_schedule_byte(board_millis() + 60000, 0x18);
+  h_send("$HX");
+  const char *out = h_take();
+  const char *fault = strstr(out, "ALARM:10\r\n[MSG:Fault: internal error, drivers disabled]\r\n[MSG:Reset to continue]");
+  const char *banner = strstr(out, "Grbl ");
+  assert_non_null(fault);
+  assert_non_null(banner);
+  assert_true(fault < banner);
+  assert_null(strstr(out, "ALARM:6"));
+  assert_int_equal(sys.state, STATE_ALARM);
+  assert_true(host_motor_steps[0] > 0);   // it faulted while moving
 }
 
 static void test_move_of_most_pieces_ends(void **state)
@@ -288,7 +318,7 @@ static void test_move_of_most_pieces_ends(void **state)
   // over from where it began, back and forth. 2e-3 steps/deg (1e5 steps, so
   // no piece is under a step) with a rate and an acceleration to match keep
   // it to seconds. (Below MINIMUM_STEPS_PER_DEG, as an older firmware's
-  // EEPROM can hold.)
+  // EEPROM held before settings_init raised it.)
   settings.steps_per_deg[0] = 0.002f;
   h_send("$110=1000000000");
   h_send("$120=10000000000");
@@ -309,7 +339,7 @@ static void test_move_under_a_step_is_one_piece(void **state)
   // kept mc_line from any wait (and the chip's watchdog) for seconds. The
   // planner drops empty pieces and the host spends no simulated time on
   // them, so only their count tells. (Below MINIMUM_STEPS_PER_DEG, as an
-  // older firmware's EEPROM can hold.)
+  // older firmware's EEPROM held before settings_init raised it.)
   settings.steps_per_deg[0] = 0.000000000002f;
   buffer_line_calls = 0;
   h_send("G1 X999999999 F1");
@@ -317,6 +347,52 @@ static void test_move_under_a_step_is_one_piece(void **state)
   assert_string_equal(h_take(), "ok\r\n");
   assert_int_equal(host_motor_steps[0], 0);
   assert_null(plan_get_current_block());
+}
+
+static void test_block_over_2p24_steps_is_exact(void **state)
+{
+  // 719.5 deg at 23401 steps/deg (a fine drive: $110 keeps it under 40 kHz)
+  // is under MAX_BLOCK_DEG but 16.8e6 steps, more than a float counts
+  // exactly (2^24): the segment prep counted the block down from the step
+  // count rounded to a float, and the motor made one step fewer than the
+  // position wants (up to 64 at 2.4e6 steps/deg). Starting at an odd step
+  // makes the step count odd, so the rounding shows.
+  h_send("$110=100");
+  h_send("$100=23401");
+  h_send("G1 X-0.5 F100");
+  assert_string_equal(h_take(), "ok\r\nok\r\nok\r\n");
+  int32_t start = sys_position[0];
+  int32_t want = nuts_lround(719.0f * 23401.0f);
+  int32_t steps = want - start;
+  assert_true(steps > (1L << 24) && (int32_t)(float)steps != steps);
+  h_send("G1 X719 F100");
+  assert_string_equal(h_take(), "ok\r\n");
+  assert_int_equal(sys.state, STATE_IDLE);
+  assert_int_equal(sys_position[0], want);
+  assert_int_equal(host_motor_steps[0], want);
+}
+
+static void test_jog_longer_than_the_planner_is_a_jog(void **state)
+{
+  // 10 000 deg: 14 pieces of MAX_BLOCK_DEG, more than the planner holds
+  // (BLOCK_BUFFER_SIZE - 1 = 9). mc_line waited for room with an automatic
+  // cycle start, so the jog ran as a cycle ("Run") and 0x85, which only
+  // cancels a jog, was ignored: the stage ran all 10 000 deg. Now it runs as
+  // a jog while its line waits, and the cancel drops the pieces not yet
+  // queued too (queued after the flush, they would run as a new jog).
+  host_schedule_byte(board_millis() + 500, '?');
+  host_schedule_byte(board_millis() + 600, CMD_JOG_CANCEL);
+  h_send("$J=G91 X10000 F1800");
+  const char *out = h_take();
+  assert_non_null(strstr(out, "<Jog|"));
+  assert_non_null(strstr(out, "ok\r\n"));
+  assert_int_equal(sys.state, STATE_IDLE);
+  assert_null(plan_get_current_block());
+  // At most 30 deg/s for 0.6 s, then 5 deg to stop (v^2 / 2a).
+  assert_true(host_motor_steps[0] > 0 && host_motor_steps[0] < 25 * 800);
+  assert_int_equal(sys_position[0], host_motor_steps[0]);
+  // The parser goes on from where the stage stopped, not from the target.
+  assert_float_equal(gc_state.position[0], sys_position[0] / 800.0f, 1e-3);
 }
 
 static void test_reset_mid_move_keeps_position(void **state)
@@ -375,8 +451,11 @@ int main(void)
     cmocka_unit_test_setup(test_hold_where_a_block_starts, setup),
     cmocka_unit_test_setup(test_segment_beyond_its_step_count_faults, setup),
     cmocka_unit_test_setup(test_block_too_long_to_count_down_faults, setup),
+    cmocka_unit_test_setup(test_fault_while_homing_is_reported, setup),
     cmocka_unit_test_setup(test_move_of_most_pieces_ends, setup),
     cmocka_unit_test_setup(test_move_under_a_step_is_one_piece, setup),
+    cmocka_unit_test_setup(test_block_over_2p24_steps_is_exact, setup),
+    cmocka_unit_test_setup(test_jog_longer_than_the_planner_is_a_jog, setup),
     cmocka_unit_test_setup(test_reset_mid_move_keeps_position, setup),
     cmocka_unit_test_setup(test_backlash_not_in_position, setup),
     cmocka_unit_test_setup(test_idle_disables_drivers, setup),

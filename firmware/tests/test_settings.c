@@ -182,6 +182,40 @@ static void test_acceleration_floor(void **state)
   }
 }
 
+static void test_values_below_floors_raised_at_load(void **state)
+{
+  // An EEPROM written before the floors can hold what $100 and $120 refuse
+  // now, with a good CRC and version. Loaded as is, '$$' showed the tiny
+  // acceleration while the planner used MINIMUM_ACCELERATION, and a tiny
+  // $100 kept the segment prep passing without a step. Raised to the
+  // floors at load, the rest of the record kept.
+  assert_int_equal(settings_store_global_setting(2, 5), STATUS_OK);
+  struct {
+    uint8_t version;
+    settings_t s;
+  } rec;
+  assert_true(settings_load_block(EEPROM_ADDR_GLOBAL, &rec, sizeof(rec)));
+  rec.s.steps_per_deg[0] = 1e-9f;
+  rec.s.steps_per_deg[2] = 0.0f;
+  rec.s.acceleration[1] = 5e-26f;
+  rec.s.acceleration[2] = MINIMUM_ACCELERATION * 0.5f;
+  settings_store_block(EEPROM_ADDR_GLOBAL, &rec, sizeof(rec));
+  h_boot();
+  const char *out = h_take();
+  assert_null(strstr(out, "defaults restored"));
+  assert_int_equal(settings.step_invert_mask, 5);
+  assert_float_equal(settings.steps_per_deg[0], MINIMUM_STEPS_PER_DEG, 0);
+  assert_float_equal(settings.steps_per_deg[1], 800.0f, 0);
+  assert_float_equal(settings.steps_per_deg[2], MINIMUM_STEPS_PER_DEG, 0);
+  assert_float_equal(settings.acceleration[0], 90.0f, 0);
+  assert_float_equal(settings.acceleration[1], MINIMUM_ACCELERATION, 0);
+  assert_float_equal(settings.acceleration[2], MINIMUM_ACCELERATION, 0);
+  h_send("$$");
+  out = h_take();
+  assert_non_null(strstr(out, "$100=0.010\r\n$101=800.000\r\n$102=0.010\r\n"));
+  assert_non_null(strstr(out, "$120=90.000\r\n$121=0.100\r\n$122=0.100\r\n"));
+}
+
 // doc/error_codes.csv and doc/alarm_codes.csv list exactly the codes of codes.h.
 static void check_csv(const char *path, const int *codes, size_t n)
 {
@@ -235,6 +269,7 @@ int main(void)
     cmocka_unit_test_setup(test_validation, setup),
     cmocka_unit_test_setup(test_acceleration_floor, setup),
     cmocka_unit_test_setup(test_steps_per_deg_floor, setup),
+    cmocka_unit_test_setup(test_values_below_floors_raised_at_load, setup),
     cmocka_unit_test(test_code_tables),
   };
   return cmocka_run_group_tests_name("settings", tests, NULL, NULL);
