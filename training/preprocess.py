@@ -1649,6 +1649,24 @@ def find_sphere(frame, p=None, camera=None):
     return cx, cy, r, np.asarray(p["fill"], np.float64)
 
 
+def rim_from(frame, circle, p=None):
+    """The sphere's rim found from a circle measured another way (v2 only): the refinement's,
+    whose radius the texture fixes within about 0.1 % (docs/refine.md, "The circle after
+    refinement"). The rim step alone (_rim, from the circle's support rays): on each ray the
+    step peak nearest the circle, its outer half-maximum less the edge half-width, the circle
+    refitted through those rims. Unlike the localisation's last step it takes no outermost
+    edge: from so near a start the nearest peak is the rim's, where the outermost can be a
+    backdrop's edge just outside it. frame: undistorted BGR uint8; circle: (cx, cy, r), OpenCV
+    pixel coordinates. Returns (cx, cy, r), or None with fewer than 8 rims."""
+    p = p or DEFAULTS
+    img = _as_bgr(frame)
+    dirs = _ray_dirs(p["rays"])
+    c = tuple(float(v) for v in circle)
+    rays, peaks = _refit_rays(img, dirs, c, p)
+    out, near = _rim(rays, peaks, dirs, c, c, p)
+    return out if near > 0 else None
+
+
 def crop(frame, cx, cy, r, bg, p=None):
     """Square crop around the circle, outside the frame filled with bg, resized to size x size;
     v2 also fills everything farther than r (1 + mask_frac) from the centre."""

@@ -1962,24 +1962,22 @@ static void through_rims(const std::vector<double> &xs, const std::vector<double
 // another (preprocess.py RIM_NEAR: the same value, and its measured reason).
 constexpr double rim_near = 0.5;
 
-// The last step from circle a (preprocess.py _last_step: _outermost, then
-// _rim), from its support's rays: refitted through the outermost edges near it
-// (outermost, to 2 inlier_px outside), then that circle moved to the rim: on
-// each ray the peak nearest where the ray crosses it, its outer half-maximum
-// less the edge half-width, the median of their distances from the circle
-// added to its radius, and the circle refitted through those rims
-// (through_rims: the steps lean inwards where the limb darkens to the
-// backdrop's level, the rims do not). Returns how many rims lie within
-// rim_near inlier_px of the circle (0 with fewer than 8 rims).
-static int last_step(const std::vector<double> &dirs, const pp_params *p, const Found &a,
-                     const Rays &rays, double *ocx, double *ocy, double *orad)
+// The circle (nx, ny, nr) moved to the rim (preprocess.py _rim), from the
+// support rays of circle a (about a's centre): on each ray the peak nearest
+// where the ray crosses it, its outer half-maximum less the edge half-width,
+// the median of their distances from the circle added to its radius, and the
+// circle refitted through those rims (through_rims: the steps lean inwards
+// where the limb darkens to the backdrop's level, the rims do not). Returns
+// how many rims lie within rim_near inlier_px of the circle (0 with fewer
+// than 8 rims: the circle unchanged).
+static int rim(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+               const Rays &rays, double nx, double ny, double nr, double *ocx, double *ocy,
+               double *orad)
 {
     const int K = (int)dirs.size() / 2;
     thread_local std::vector<double> w, outer, xs, ys;
     const int32_t *poff = rays.off.data();
     const double *pp = rays.pos.data();
-    double nx, ny, nr;
-    outermost(dirs, p, a, rays, 2.0, &nx, &ny, &nr);
     // the rim, on each ray near where it crosses the new circle (outer: NaN
     // for a ray without)
     const double dx = nx - a.cx, dy = ny - a.cy;
@@ -2034,6 +2032,18 @@ static int last_step(const std::vector<double> &dirs, const pp_params *p, const 
     int near = 0;
     for (double v : w) near += std::fabs(v) <= rim_near * p->inlier_px;
     return near;
+}
+
+// The last step from circle a (preprocess.py _last_step), from its support's
+// rays: refitted through the outermost edges near it (outermost, to 2
+// inlier_px outside), then that circle moved to the rim (rim). Returns rim's
+// count of the rims near the result.
+static int last_step(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+                     const Rays &rays, double *ocx, double *ocy, double *orad)
+{
+    double nx, ny, nr;
+    outermost(dirs, p, a, rays, 2.0, &nx, &ny, &nr);
+    return rim(dirs, p, a, rays, nx, ny, nr, ocx, ocy, orad);
 }
 
 // The sphere's circle (preprocess.py _final_circle): the last step from its
@@ -2670,6 +2680,18 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // and from the wider band's circle too when weakly supported
     final_circle(f, dirs, p, sp, bank[fits[(size_t)ia]], &bank[all.size()], ocx, ocy, orad);
     return 0;
+}
+
+int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
+             double cy, double r, double *ocx, double *ocy, double *orad)
+{
+    thread_local std::vector<double> dirs;
+    if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
+    thread_local Rays rays;
+    const Frame f = {bgr, stride, w, h};
+    // the circle's support rays (the support itself decides nothing here)
+    const Found a = {cx, cy, r, support(f, dirs, cx, cy, r, p, &rays)};
+    return rim(dirs, p, a, rays, cx, cy, r, ocx, ocy, orad) > 0 ? 0 : -1;
 }
 
 void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r,

@@ -22,6 +22,13 @@ namespace crop2
 int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *cx,
                 double *cy, double *r, char *err, size_t errlen);
 
+// The sphere's rim found from a circle measured another way, the
+// refinement's (preprocess.py rim_from): on each of the circle's support rays
+// the step peak nearest it, moved to its outer half-maximum, and the circle
+// refitted through those rims. Returns 0, or -1 with fewer than 8 rims.
+int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
+             double cy, double r, double *ocx, double *ocy, double *orad);
+
 // Crop (steps after the circle): the square of side 2 r margin around it,
 // outside the frame `fill`, reduced to size x size (INTER_AREA), every output
 // pixel farther than r (1 + mask_frac) from the centre set to `fill`. Writes

@@ -81,6 +81,12 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
 #define RF_CHECK_PX     2.0
 #define RF_CHECK_DEG    2.5
 
+/* The circle after refinement (training/refine.py RIM_CHECK_PCT): a confident
+ * answer whose refined radius differs from the localisation's by more than
+ * this many percent gets the rim found from the refined circle as its circle
+ * (sphere-crop-v2). */
+#define RF_RIM_CHECK_PCT 0.2
+
 /* The angle of the rotation from B to A, degrees. */
 double rf_rotation_deg(const double A[3][3], const double B[3][3]);
 

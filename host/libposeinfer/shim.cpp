@@ -298,6 +298,18 @@ static void normalise(const unsigned char *small, size_t step, const pp_params *
     }
 }
 
+// A frame of 1, 3 or 4 channels as BGR (a 3-channel frame itself, not copied).
+static cv::Mat bgr_of(const pi_frame *f)
+{
+    const size_t stride = f->stride ? f->stride : (size_t)f->width * f->channels;
+    const cv::Mat src(f->height, f->width, CV_8UC(f->channels), const_cast<uint8_t *>(f->data),
+                      stride);
+    if (f->channels == 3) return src;
+    cv::Mat bgr;
+    cv::cvtColor(src, bgr, f->channels == 1 ? cv::COLOR_GRAY2BGR : cv::COLOR_BGRA2BGR);
+    return bgr;
+}
+
 // sphere-crop-v2: undistort (camera with distortion) into *und, find the
 // circle, crop. *und is the caller's, so refinement can read the same image.
 static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp_circle *circ,
@@ -336,6 +348,18 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
     circ->r = r;
     for (int c = 0; c < 3; c++) circ->bg[c] = p->fill[c];
     return 0;
+}
+
+extern "C" int shim_rim_from(const pi_frame *f, const pp_params *p, double cx, double cy, double r,
+                             double *ocx, double *ocy, double *orad, char *err)
+{
+    try {
+        const cv::Mat bgr = bgr_of(f);
+        return crop2::rim_from(bgr.data, bgr.cols, bgr.rows, bgr.step[0], p, cx, cy, r, ocx, ocy,
+                               orad) < 0;
+    }
+    SHIM_CATCH("rim")
+    return -1;
 }
 
 extern "C" int shim_crop2_avx512(void)
@@ -381,15 +405,7 @@ extern "C" int shim_preprocess_seen(const pi_frame *f, const pp_params *p, float
             seterr(err, "preprocess", "frame too small or not 1, 3 or 4 channels of 8 bits");
             return -1;
         }
-        size_t stride = f->stride ? f->stride : (size_t)w * f->channels;
-        cv::Mat src(h, w, CV_8UC(f->channels), const_cast<uint8_t *>(f->data), stride);
-        cv::Mat bgr;
-        if (f->channels == 1)
-            cv::cvtColor(src, bgr, cv::COLOR_GRAY2BGR);
-        else if (f->channels == 4)
-            cv::cvtColor(src, bgr, cv::COLOR_BGRA2BGR);
-        else
-            bgr = src;
+        const cv::Mat bgr = bgr_of(f);
         if (p->version == 2) {
             cv::Mat local;
             cv::Mat *und = keep ? &keep->m : &local;

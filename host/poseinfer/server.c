@@ -126,9 +126,8 @@ void result_json(sbuf *s, const char *key, const char *name, const pi_result *r,
     put_num(s, ", \"z\": ", r->z, 4);
     put_num(s, ", \"ms\": ", r->total_ms, 3);
     /* the sphere's circle, conventions' continuous pixels (docs/poseinfer.md) */
-    const double circle[3] = {r->cx + 0.5, r->cy + 0.5, r->r};
     sb_puts(s, ", \"circle\": ");
-    put_nums(s, circle, 3, 3);
+    put_nums(s, r->circle, 3, 3);
     /* docs/refine.md: null when the model carries no texture */
     sb_puts(s, r->has_confidence
                    ? (r->confident ? ", \"confident\": true" : ", \"confident\": false")

@@ -300,12 +300,14 @@ def test_c_parameters_match(tmp_path):
 
 
 def test_c_check_parameters_match():
-    """host/libposeinfer/refine.h copies the convergence check's parameters and the default
-    converge_max_deg."""
+    """host/libposeinfer/refine.h copies the convergence check's parameters, the default
+    converge_max_deg and the circle check's RIM_CHECK_PCT."""
     h = (REPO / "host" / "libposeinfer" / "refine.h").read_text()
-    defs = {line.split()[1]: line.split()[2] for line in h.splitlines() if line.startswith("#define RF_CHECK_")}
+    defs = {line.split()[1]: line.split()[2] for line in h.splitlines()
+            if line.startswith(("#define RF_CHECK_", "#define RF_RIM_CHECK_"))}
     assert int(defs["RF_CHECK_PASSES"]) == rf.CHECK_PASSES
     assert float(defs["RF_CHECK_PX"]) == rf.CHECK_PX and float(defs["RF_CHECK_DEG"]) == rf.CHECK_DEG
+    assert float(defs["RF_RIM_CHECK_PCT"]) == rf.RIM_CHECK_PCT
     c = (REPO / "host" / "libposeinfer" / "confidence.c").read_text()
     assert f"c->converge_max_deg = {rf.DEFAULT_CONFIDENCE['converge_max_deg']};" in c
 
@@ -351,6 +353,7 @@ def test_c_agrees_with_python(tmp_path, texture):
         assert geodesic_deg(R_c, R_p) < 0.005, (p.name, c, py)
         assert c["residual"] == pytest.approx(py["residual"], abs=2e-5)
         assert c["confident"] == py["confident"]
+        assert np.abs(np.array(c["circle"]) - py["circle"]).max() < 2e-3, (p.name, c, py)
         if p.name == "gray.png":
             assert py["colour"] is None and py["moved"] is not None, py
     assert lines[-1]["confident"] is False and "note" in lines[-1]
