@@ -10,10 +10,13 @@ shares no code with sim/ or training/), runs the C runtime on them
 (`host/build/poseinfer --model M --timings [--camera-file C] DIR`) and
 compares its JSON lines with truth.jsonl: per family MAE, RMSE, max (the
 paper's metrics over all axes), the geodesic error (mean, median, p95,
-max), the share of frames answered, and the sphere localisation (centre
+max), the share of frames answered, and the sphere's circle (centre
 error in px, radius error in %) from the result's "circle" [cx, cy, r]
-(continuous pixels of the undistorted image) or, for runtimes without it,
-from --timings' cx, cy, r (OpenCV pixel centres, so + 0.5). Frames of the
+(continuous pixels of the undistorted image: the circle the runtime prints,
+since a9189ac checked against the refined radius, docs/refine.md step 8)
+or, for runtimes without it, from --timings' cx, cy, r (the localisation's,
+OpenCV pixel centres, so + 0.5); bench/localise.py measures the localisation
+alone. Frames of the
 `refuse` family must get an error or a flag; they are counted apart. It writes
 report.md (the table, a breakdown by backdrop and mount, the worst frames),
 results.jsonl and realscene.png (error distributions) into --out and prints
@@ -337,7 +340,7 @@ def plot(rows_by_family, path):
             axes[1].plot(np.maximum(dc, 1e-3), np.arange(1, len(dc) + 1) / len(rows), label=fam)
     axes[0].set(xscale="log", xlabel="geodesic error (°)", ylabel="share of frames", title="pose error")
     axes[1].set(xscale="log", xlabel="sphere centre error (px)", ylabel="share of frames",
-                title="localisation")
+                title="printed circle")
     for ax in axes:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()

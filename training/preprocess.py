@@ -1657,7 +1657,8 @@ def rim_from(frame, circle, p=None):
     refitted through those rims. Unlike the localisation's last step it takes no outermost
     edge: from so near a start the nearest peak is the rim's, where the outermost can be a
     backdrop's edge just outside it. frame: undistorted BGR uint8; circle: (cx, cy, r), OpenCV
-    pixel coordinates. Returns (cx, cy, r), or None with fewer than 8 rims."""
+    pixel coordinates. Returns (cx, cy, r), or None with fewer than 8 rims or none of them near
+    the refitted circle (_rim's near, 0)."""
     p = p or DEFAULTS
     img = _as_bgr(frame)
     dirs = _ray_dirs(p["rays"])

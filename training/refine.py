@@ -563,6 +563,7 @@ class Refiner:
 
     def __init__(self, meta, camera=None):
         self.meta = meta
+        self.pp = None  # the preprocessing's parameters, read when printed_circle first needs them
         self.texture = texture_pyramid(texture_from_b64(meta[META_TEXTURE])) if META_TEXTURE in meta else None
         self.conf = confidence_params(meta.get(META_CONFIDENCE))
         self.ranges = json.loads(meta.get("spherepose.ranges") or '{"x": [-30, 30], "y": [-30, 30], "z": [-30, 30]}')
@@ -596,12 +597,14 @@ class Refiner:
         """The sphere's circle as poseinfer prints it, continuous coordinates: the localisation's
         (circle as __call__ takes it), or, when a confident answer's refined circle (`refined`)
         has a radius more than RIM_CHECK_PCT percent off it, the rim found from the refined
-        circle (sphere-crop-v2 models; the localisation's when fewer than 8 rims)."""
+        circle (sphere-crop-v2 models; the localisation's when rim_from finds none)."""
         from training import preprocess as pp
         found = [circle[0], circle[1], circle[2] - 0.5]
         if refined is None or not 100.0 * abs(refined[2] / found[2] - 1.0) > RIM_CHECK_PCT:
             return found
-        p = pp.params(self.meta.get("spherepose.preprocess"))
+        if self.pp is None:
+            self.pp = pp.params(self.meta.get("spherepose.preprocess"))
+        p = self.pp
         if p["name"] != pp.NAME_V2:
             return found
         rim = pp.rim_from(frame, (refined[0] - 0.5, refined[1] - 0.5, refined[2]), p)

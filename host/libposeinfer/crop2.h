@@ -25,7 +25,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
 // The sphere's rim found from a circle measured another way, the
 // refinement's (preprocess.py rim_from): on each of the circle's support rays
 // the step peak nearest it, moved to its outer half-maximum, and the circle
-// refitted through those rims. Returns 0, or -1 with fewer than 8 rims.
+// refitted through those rims. Returns 0, or -1 with fewer than 8 rims or
+// none of them near the refitted circle.
 int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
              double cy, double r, double *ocx, double *ocy, double *orad);
 

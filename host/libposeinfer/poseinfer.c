@@ -797,7 +797,7 @@ fail:
  * refined radius within about 0.1 %; where it differs from the localisation's
  * by more than RF_RIM_CHECK_PCT %, the localisation's circle is off, and the
  * rim found from the refined circle is the sphere's (sphere-crop-v2; the
- * localisation's stands when too few rims are found, or when that fails). */
+ * localisation's stands when shim_rim_from finds no rim or fails). */
 static void rim_check(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
 {
     char rerr[PI_ERR_LEN];

@@ -99,7 +99,8 @@ int shim_preprocess_seen(const pi_frame *f, const pp_params *p, float *out, pp_c
 /* sphere-crop-v2: the sphere's rim found from a circle measured another way
  * (crop2.h rim_from), in a frame as *seen gives it (1, 3 or 4 channels);
  * circle and result in OpenCV pixel coordinates. Returns 0, 1 when fewer
- * than 8 rims were found (the circle stands), -1 with err (out of memory). */
+ * than 8 rims were found or none lies near the refitted circle (the circle
+ * stands), -1 with err (out of memory). */
 int shim_rim_from(const pi_frame *f, const pp_params *p, double cx, double cy, double r,
                   double *ocx, double *ocy, double *orad, char *err);
 

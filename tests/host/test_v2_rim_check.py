@@ -35,10 +35,12 @@ def test_rim_from_a_near_circle(frames):
     p = params()
     for path, truth in frames:
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        # from the truth moved as far as a refined circle can be off (0.5 px, 0.15 %)
-        start = (truth[0] + 0.4, truth[1] - 0.3, truth[2] * 1.0015)
+        # from the truth moved about as far as a refined circle is off at worst (0.75 px, 0.2 %;
+        # the refined centre's 99th percentile is 0.65 px): outside the limits on its own, well
+        # within them after the rim step (0.13-0.28 px)
+        start = (truth[0] + 0.6, truth[1] - 0.45, truth[2] * 1.002)
         ec, er = circle_error(pp.rim_from(img, start, p), truth)
-        assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
+        assert ec <= 0.4 and er <= 0.4, (path.name, ec, er)
     # nothing to find on a flat frame
     assert pp.rim_from(np.full((512, 640, 3), 90, np.uint8), (320.0, 256.0, 130.0), p) is None
 

@@ -64,8 +64,10 @@ def test_c_agrees_with_python_through_a_lens(tmp_path):
         frame = cv2.imread(str(p))
         und, circle, euler = rf.network_estimate(sess, meta, frame, camera)
         assert np.abs(np.array(c["net"]) - euler).max() < 0.01
-        # the printed circle is (cx + 0.5, cy + 0.5, r); refinement starts from r + 0.5
-        assert np.abs(np.array(c["circle"]) + [0, 0, 0.5] - circle).max() < 0.01, (p.name, c, circle)
+        # the circle found is (cx + 0.5, cy + 0.5, r) (--timings, 2 decimals); refinement starts
+        # from r + 0.5
+        found = np.array([c["cx"] + 0.5, c["cy"] + 0.5, c["r"] + 0.5])
+        assert np.abs(found - circle).max() < 0.006, (p.name, c, circle)
         # from the C side's network angles, so that only refinement is compared
         py = ref(und, circle, tuple(c["net"]))
         assert geodesic_deg((c["x"], c["y"], c["z"]), (py["x"], py["y"], py["z"])) < 0.005, (p.name, c, py)
