@@ -69,9 +69,9 @@ typedef struct pi_result {
     double refine_ms;
     double locate_ms; /* of preprocess_ms, finding the sphere alone (sphere-crop-v2; 0 for v1) */
     double circle[3]; /* the sphere's circle as printed, continuous pixel coordinates: the
-                            one found (cx + 0.5, cy + 0.5, r), or the rim found from the refined
-                            circle when a confident answer's refined radius differs from r by
-                            more than RIM_CHECK_PCT % (docs/refine.md) */
+                         one found (cx + 0.5, cy + 0.5, r), or the rim found from the refined
+                         circle when a confident answer's refined radius differs from r by
+                         more than RIM_CHECK_PCT % (docs/refine.md) */
 } pi_result;
 
 /* A raw 8-bit frame. channels: 1 (gray), 3 (BGR) or 4 (BGRA); stride in bytes
