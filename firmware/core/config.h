@@ -40,7 +40,9 @@
 // count was rounded and the motor ran up to 64 steps short or long). The
 // margin below 2^24 covers the rounding of the pieces' ends (float degrees:
 // ~60 steps at MAX_TARGET_STEPS). It also keeps the step ISR's doubled
-// Bresenham sums (up to 4x a block's steps) inside uint32_t.
+// Bresenham sums (up to 4x a block's steps) inside uint32_t for mc_line's
+// blocks; a homing seek (1.5 x $130 at $100) is not cut, and only settings
+// far beyond any stage's (over 2^30 steps in one seek) would overflow them.
 #define MAX_BLOCK_STEPS 16000000.0f
 #define MAX_TARGET_STEPS 1.0e9f       // |target| in steps; keeps step deltas inside int32 (error:33 beyond)
 // Slowest acceleration, deg/s^2: $120-$122 below it are refused (error:3),

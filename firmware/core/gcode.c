@@ -104,8 +104,13 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
     uint8_t word_bit;
     if (letter == 'G' || letter == 'M') {
       if (value < 0 || value > 255) FAIL(STATUS_GCODE_UNSUPPORTED_COMMAND);
-      int_value = (uint8_t)truncf(value);
-      mantissa = (uint16_t)lroundf(100 * (value - int_value));
+      // Integer part and hundredths, rounded half up as lroundf would, without
+      // pulling lroundf and truncf in (the conversion truncates; frac - mantissa
+      // is exact, so there is no double rounding as in (uint16_t)(frac + 0.5f)).
+      int_value = (uint8_t)value;
+      float frac = 100 * (value - int_value);
+      mantissa = (uint8_t)frac;
+      if (frac - mantissa >= 0.5f) mantissa++;
     }
     switch (letter) {
       case 'G':
@@ -186,7 +191,7 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
         switch (letter) {
           case 'F': word_bit = WORD_F; f = value; break;
           case 'L': word_bit = WORD_L; if (value < 0 || value > 255) FAIL(STATUS_GCODE_UNSUPPORTED_COMMAND); l = (uint8_t)value; if (l != value) FAIL(STATUS_GCODE_COMMAND_VALUE_NOT_INTEGER); break;
-          case 'N': word_bit = WORD_N; if (value > MAX_LINE_NUMBER || value < 0) FAIL(STATUS_GCODE_INVALID_LINE_NUMBER); n = (int32_t)truncf(value); break;
+          case 'N': word_bit = WORD_N; if (value > MAX_LINE_NUMBER || value < 0) FAIL(STATUS_GCODE_INVALID_LINE_NUMBER); n = (int32_t)value; break;
           case 'P': word_bit = WORD_P; p = value; break;
           case 'X': word_bit = WORD_X; xyz[X_AXIS] = value; axis_words |= bit(X_AXIS); break;
           case 'Y': word_bit = WORD_Y; xyz[Y_AXIS] = value; axis_words |= bit(Y_AXIS); break;
@@ -231,7 +236,7 @@ uint8_t gc_execute_line(char *line, uint8_t jog)
     case NON_MODAL_SET_COORDINATE_DATA:
       if (!axis_words) FAIL(STATUS_GCODE_NO_AXIS_WORDS);
       if ((value_words & (bit(WORD_P) | bit(WORD_L))) != (bit(WORD_P) | bit(WORD_L))) FAIL(STATUS_GCODE_VALUE_WORD_MISSING);
-      if (p != truncf(p) || p > N_COORDINATE_SYSTEM) FAIL(STATUS_GCODE_UNSUPPORTED_COORD_SYS);
+      if (p > N_COORDINATE_SYSTEM || p != (uint8_t)p) FAIL(STATUS_GCODE_UNSUPPORTED_COORD_SYS);
       if (l != 2 && l != 20) FAIL(STATUS_GCODE_UNSUPPORTED_COMMAND);
       coord_select = (p > 0) ? (uint8_t)p - 1 : modal.coord_select;
       value_words &= ~(bit(WORD_L) | bit(WORD_P));

@@ -28,7 +28,9 @@ static struct {
   uint8_t last_dir_bits;             // direction each axis last moved (for backlash)
 } pl;
 
-static uint8_t plan_next_block_index(uint8_t i)
+// Out of line: called from seven places, where LTO's inlined copies cost
+// more flash than the calls.
+static uint8_t __attribute__((noinline)) plan_next_block_index(uint8_t i)
 {
   return (++i == BLOCK_BUFFER_SIZE) ? 0 : i;
 }
@@ -56,6 +58,13 @@ void plan_reset(void)
   block_buffer_planned = 0;
 }
 
+// Out of line: the two planner passes and the segment prep's deceleration
+// had five copies of it.
+float __attribute__((noinline)) plan_speed_sqr_change(const plan_block_t *block)
+{
+  return 2 * block->acceleration * block->millimeters;
+}
+
 static void planner_recalculate(void)
 {
   uint8_t block_index = plan_prev_block_index(block_buffer_head);
@@ -65,7 +74,8 @@ static void planner_recalculate(void)
   plan_block_t *next;
   plan_block_t *current = &block_buffer[block_index];
   // The last block must be able to stop.
-  current->entry_speed_sqr = min(current->max_entry_speed_sqr, 2 * current->acceleration * current->millimeters);
+  entry_speed_sqr = plan_speed_sqr_change(current);
+  current->entry_speed_sqr = min(current->max_entry_speed_sqr, entry_speed_sqr);
 
   block_index = plan_prev_block_index(block_index);
   if (block_index == block_buffer_planned) {
@@ -77,7 +87,7 @@ static void planner_recalculate(void)
       block_index = plan_prev_block_index(block_index);
       if (block_index == block_buffer_tail) st_update_plan_block_parameters();
       if (current->entry_speed_sqr != current->max_entry_speed_sqr) {
-        entry_speed_sqr = next->entry_speed_sqr + 2 * current->acceleration * current->millimeters;
+        entry_speed_sqr = next->entry_speed_sqr + plan_speed_sqr_change(current);
         current->entry_speed_sqr = min(entry_speed_sqr, current->max_entry_speed_sqr);
       }
     }
@@ -89,7 +99,7 @@ static void planner_recalculate(void)
     current = next;
     next = &block_buffer[block_index];
     if (current->entry_speed_sqr < next->entry_speed_sqr) {
-      entry_speed_sqr = current->entry_speed_sqr + 2 * current->acceleration * current->millimeters;
+      entry_speed_sqr = current->entry_speed_sqr + plan_speed_sqr_change(current);
       if (entry_speed_sqr < next->entry_speed_sqr) {
         next->entry_speed_sqr = entry_speed_sqr;
         block_buffer_planned = block_index;
@@ -158,7 +168,8 @@ float plan_compute_profile_nominal_speed(const plan_block_t *block)
 }
 
 // Entry speed limit from the junction and the nominal speeds on both sides.
-static void plan_compute_profile_parameters(plan_block_t *block, float nominal_speed, float prev_nominal_speed)
+// Out of line: its two callers each had a copy.
+static void __attribute__((noinline)) plan_compute_profile_parameters(plan_block_t *block, float nominal_speed, float prev_nominal_speed)
 {
   block->max_entry_speed_sqr = (nominal_speed > prev_nominal_speed) ? prev_nominal_speed * prev_nominal_speed
                                                                     : nominal_speed * nominal_speed;

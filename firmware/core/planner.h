@@ -49,6 +49,7 @@ void plan_get_position(float *position);            // main loop: end of the las
 void plan_set_last_direction(uint8_t axes, uint8_t negative_bits); // main loop (homing): direction the axes last turned, for backlash
 void plan_cycle_reinitialize(void);                 // main loop: after a hold, replan from zero speed
 uint8_t plan_backlash_blocks_needed(const float *target); // main loop: free blocks a move to target needs (1 or 2)
+float plan_speed_sqr_change(const plan_block_t *block); // planner, prep: 2 a d, the change in speed^2 over the degrees left in block
 float plan_compute_profile_nominal_speed(const plan_block_t *block); // prep: deg/min, overrides applied
 void plan_update_velocity_profile_parameters(void); // main loop: an override changed: new speed limits for every queued block
 

@@ -254,7 +254,9 @@ static void protocol_exec_rt_system(void)
           if (block && !(sys.suspend & SUSPEND_MOTION_CANCEL)) {
             sys.suspend = SUSPEND_DISABLE;
             // A jog too long for the planner starts here, from mc_line's
-            // wait for room: it stays a jog (0x85 cancels it, G-code waits).
+            // wait for room: it stays a jog (0x85 cancels it; G-code sent
+            // meanwhile waits for the line, then gets error:9 until the jog ends, as
+            // for any GRBL jog).
             sys.state = (block->condition & PL_COND_FLAG_JOG) ? STATE_JOG : STATE_CYCLE;
             st_prep_buffer();
             st_wake_up();

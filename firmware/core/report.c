@@ -54,6 +54,14 @@ void printFloat(float n, uint8_t decimals)
   while (i > 0) serial_write(buf[--i]);
 }
 
+// "a,b" (Bf, Ov, OPT)
+static void print_uint_pair(uint8_t a, uint8_t b)
+{
+  print_uint32(a);
+  serial_write(',');
+  print_uint32(b);
+}
+
 static void print_axis_values(const float *v)
 {
   for (uint8_t i = 0; i < N_AXIS; i++) {
@@ -103,12 +111,17 @@ static const char feedback_messages[] PROGMEM =
   "Fault: internal error, drivers disabled\0"             // 12 MESSAGE_FAULT_INTERNAL
   "Coordinate data failed CRC check, cleared";            // 13 MESSAGE_COORD_CRC
 
+// The n-th (from 0) of the NUL-separated strings in flash at list.
+static void print_pgm_nth(const char *list, uint8_t n)
+{
+  while (n--) while (pgm_read_byte(list++)) {}
+  printPgmString(list);
+}
+
 void report_feedback_message(uint8_t message)
 {
-  const char *p = feedback_messages;
-  while (--message) while (pgm_read_byte(p++)) {}
   printPgmString(PSTR("[MSG:"));
-  printPgmString(p);
+  print_pgm_nth(feedback_messages, message - 1);
   printPgmString(PSTR("]\r\n"));
 }
 
@@ -123,21 +136,13 @@ void report_grbl_help(void)
   printPgmString(PSTR("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $C $X $H $HX $HY $HZ $RST= ~ ! ? ctrl-x]\r\n"));
 }
 
-static void report_setting_u(uint8_t n, uint32_t v)
+// "$n=value": integer settings print through printFloat too (0 decimals).
+static void report_setting(uint8_t n, float v, uint8_t decimals)
 {
   serial_write('$');
   print_uint32(n);
   serial_write('=');
-  print_uint32(v);
-  report_eol();
-}
-
-static void report_setting_f(uint8_t n, float v)
-{
-  serial_write('$');
-  print_uint32(n);
-  serial_write('=');
-  printFloat(v, N_DECIMAL_SETTINGVALUE);
+  printFloat(v, decimals);
   report_eol();
 }
 
@@ -149,21 +154,29 @@ void report_grbl_settings(void)
     uint8_t n = pgm_read_byte(&settings_table[i][0]);
     uint8_t kind = pgm_read_byte(&settings_table[i][1]);
     uint8_t arg = pgm_read_byte(&settings_table[i][2]);
+    float f;
+    uint8_t decimals = 0;
     if (kind == SET_FLOAT) {
-      float f;
       memcpy(&f, base + arg, sizeof(f));
-      report_setting_f(n, f);
+      decimals = N_DECIMAL_SETTINGVALUE;
     } else {
       uint16_t v = base[arg];
       if (kind == SET_U16) v |= base[arg + 1] << 8;
       if (kind == SET_FLAG) v = (settings.flags & arg) != 0;
-      report_setting_u(n, v);
+      f = v;
+    }
+    report_setting(n, f, decimals);
+  }
+  // '$100'..'$142': the five per-axis float groups that open settings_t
+  // (settings.h), walked as bytes: one pointer instead of a table of five
+  for (uint8_t n = 100; n < 150; n += 10) {
+    for (uint8_t i = 0; i < N_AXIS; i++) {
+      float f;
+      memcpy(&f, base, sizeof(f));
+      base += sizeof(f);
+      report_setting(n + i, f, N_DECIMAL_SETTINGVALUE);
     }
   }
-  const float *groups[5] = {settings.steps_per_deg, settings.max_rate, settings.acceleration,
-                            settings.max_travel, settings.backlash};
-  for (uint8_t g = 0; g < 5; g++)
-    for (uint8_t i = 0; i < N_AXIS; i++) report_setting_f(100 + 10 * g + i, groups[g][i]);
 }
 
 static void report_coord(const char *pname, const float *v)
@@ -236,11 +249,14 @@ void report_build_info(const char *info)
   printPgmString(PSTR("[VER:" GRBL_VERSION "." GRBL_VERSION_BUILD ":"));
   printString(info);
   printPgmString(PSTR("]\r\n[OPT:H,"));
-  print_uint32(BLOCK_BUFFER_SIZE - 1);
-  serial_write(',');
-  print_uint32(RX_BUFFER_SIZE);
+  print_uint_pair(BLOCK_BUFFER_SIZE - 1, RX_BUFFER_SIZE);
   printPgmString(PSTR("]\r\n"));
 }
+
+// sys.state's names, by bit number + 1 (0: Idle), as GRBL writes them
+_Static_assert(STATE_ALARM == 1 << 0 && STATE_CHECK_MODE == 1 << 1 && STATE_HOMING == 1 << 2 &&
+               STATE_CYCLE == 1 << 3 && STATE_HOLD == 1 << 4 && STATE_JOG == 1 << 5, "state bits moved");
+static const char state_names[] PROGMEM = "Idle\0Alarm\0Check\0Home\0Run\0Hold:\0Jog";
 
 void report_realtime_status(void)
 {
@@ -250,22 +266,14 @@ void report_realtime_status(void)
   system_get_position(steps);
   system_convert_array_steps_to_mpos(pos, steps);
 
+  // The state's name by its bit (STATE_*: 0 or one bit), from one string.
   serial_write('<');
-  switch (sys.state) {
-    case STATE_IDLE: printPgmString(PSTR("Idle")); break;
-    case STATE_CYCLE: printPgmString(PSTR("Run")); break;
-    case STATE_HOLD:
-      if (!(sys.suspend & SUSPEND_JOG_CANCEL)) {
-        printPgmString(PSTR("Hold:"));
-        serial_write(sys.suspend & SUSPEND_HOLD_COMPLETE ? '0' : '1');
-        break;
-      } // a jog cancel reports Jog
-      /* fall through */
-    case STATE_JOG: printPgmString(PSTR("Jog")); break;
-    case STATE_HOMING: printPgmString(PSTR("Home")); break;
-    case STATE_ALARM: printPgmString(PSTR("Alarm")); break;
-    case STATE_CHECK_MODE: printPgmString(PSTR("Check")); break;
-  }
+  uint8_t state = sys.state;
+  if (state == STATE_HOLD && (sys.suspend & SUSPEND_JOG_CANCEL)) state = STATE_JOG;  // a jog cancel reports Jog
+  uint8_t k = 0;
+  for (uint8_t b = state; b; b >>= 1) k++;
+  print_pgm_nth(state_names, k);
+  if (state == STATE_HOLD) serial_write(sys.suspend & SUSPEND_HOLD_COMPLETE ? '0' : '1');   // "Hold:0" / "Hold:1"
 
   for (uint8_t i = 0; i < N_AXIS; i++) {
     wco[i] = gc_state.coord_system[i] + gc_state.coord_offset[i];
@@ -276,9 +284,7 @@ void report_realtime_status(void)
 
   if (settings.status_report_mask & 2) {
     printPgmString(PSTR("|Bf:"));
-    print_uint32(plan_get_block_buffer_available());
-    serial_write(',');
-    print_uint32(serial_get_rx_buffer_available());
+    print_uint_pair(plan_get_block_buffer_available(), serial_get_rx_buffer_available());
   }
 
   printPgmString(PSTR("|FS:"));
@@ -288,9 +294,8 @@ void report_realtime_status(void)
   uint8_t lim = limits_get_state();
   if (lim) {
     printPgmString(PSTR("|Pn:"));
-    if (lim & bit(X_AXIS)) serial_write('X');
-    if (lim & bit(Y_AXIS)) serial_write('Y');
-    if (lim & bit(Z_AXIS)) serial_write('Z');
+    for (uint8_t i = 0; i < N_AXIS; i++)
+      if (lim & bit(i)) serial_write('X' + i);
   }
 
   if (sys.report_wco_counter > 0) {
@@ -308,9 +313,7 @@ void report_realtime_status(void)
     sys.report_ovr_counter = (sys.state & (STATE_HOMING | STATE_CYCLE | STATE_HOLD | STATE_JOG))
                                  ? REPORT_OVR_REFRESH_BUSY_COUNT - 1 : REPORT_OVR_REFRESH_IDLE_COUNT - 1;
     printPgmString(PSTR("|Ov:"));
-    print_uint32(sys.f_override);
-    serial_write(',');
-    print_uint32(sys.r_override);
+    print_uint_pair(sys.f_override, sys.r_override);
     printPgmString(PSTR(",100"));   // spindle: none
   }
   printPgmString(PSTR(">\r\n"));

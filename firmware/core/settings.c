@@ -228,37 +228,35 @@ uint8_t settings_store_global_setting(uint8_t parameter, float value)
 {
   if (value < 0.0f) return STATUS_NEGATIVE_VALUE;
   if (parameter >= 100) {
+    // $100-$142: parameter = 100 + 10 * set_idx + idx, set_idx picking one of
+    // the five per-axis float groups that open settings_t (in this order).
+    uint8_t idx = parameter - 100;
     uint8_t set_idx = 0;
-    while (set_idx < 5) {
-      uint8_t idx = parameter - 100 - 10 * set_idx;
-      if (parameter >= 100 + 10 * set_idx && idx < N_AXIS) {
-        switch (set_idx) {
-          case 0:
-            if (!settings_step_rate_ok(value, settings.max_rate[idx]) || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
-            if (below_floor(value, MINIMUM_STEPS_PER_DEG)) return STATUS_INVALID_STATEMENT;
-            settings.steps_per_deg[idx] = value;
-            break;
-          case 1:
-            if (!settings_step_rate_ok(settings.steps_per_deg[idx], value) || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
-            settings.max_rate[idx] = value;
-            break;
-          case 2:
-            if (value <= 0.0f) return STATUS_NEGATIVE_VALUE;
-            // the two float steps let through are raised by the planner
-            if (below_floor(value, MINIMUM_ACCELERATION)) return STATUS_INVALID_STATEMENT;
-            settings.acceleration[idx] = value;
-            break;
-          case 3: settings.max_travel[idx] = value; break;
-          case 4:
-            if (value * settings.steps_per_deg[idx] > 30000.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
-            settings.backlash[idx] = value;
-            break;
-        }
-        break;
-      }
+    while (idx >= 10) {
+      idx -= 10;
       set_idx++;
     }
-    if (set_idx == 5) return STATUS_INVALID_STATEMENT;
+    if (set_idx >= 5 || idx >= N_AXIS) return STATUS_INVALID_STATEMENT;
+    if (set_idx <= 1) {
+      // $10x and $11x: the step rate with the new value in its place
+      float steps_per_deg = set_idx ? settings.steps_per_deg[idx] : value;
+      float max_rate = set_idx ? value : settings.max_rate[idx];
+      if (!settings_step_rate_ok(steps_per_deg, max_rate) || value <= 0.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+    }
+    switch (set_idx) {
+      case 0:
+        if (below_floor(value, MINIMUM_STEPS_PER_DEG)) return STATUS_INVALID_STATEMENT;
+        break;
+      case 2:
+        if (value <= 0.0f) return STATUS_NEGATIVE_VALUE;
+        // the two float steps let through are raised by the planner
+        if (below_floor(value, MINIMUM_ACCELERATION)) return STATUS_INVALID_STATEMENT;
+        break;
+      case 4:
+        if (value * settings.steps_per_deg[idx] > 30000.0f) return STATUS_MAX_STEP_RATE_EXCEEDED;
+        break;
+    }
+    memcpy((uint8_t *)&settings + (N_AXIS * set_idx + idx) * sizeof(float), &value, sizeof(value));
   } else {
     if (value > 65535.0f) return STATUS_INVALID_STATEMENT;
     uint16_t int_value = (uint16_t)(value + 0.5f);

@@ -2,6 +2,7 @@
 #ifndef SETTINGS_H
 #define SETTINGS_H
 
+#include <stddef.h>
 #include <stdint.h>
 #include "config.h"
 
@@ -33,6 +34,8 @@
 #define SETTING_INDEX_G30 (N_COORDINATE_SYSTEM + 1)
 #define SETTING_INDEX_NCOORD (N_COORDINATE_SYSTEM + 2)
 
+// The five per-axis groups come first and in this order: '$$' and
+// settings_store_global_setting reach $1g0 + i at float N_AXIS * g + i.
 typedef struct {
   float steps_per_deg[N_AXIS];   // $100-$102 steps/deg
   float max_rate[N_AXIS];        // $110-$112 deg/min
@@ -52,6 +55,10 @@ typedef struct {
   uint8_t homing_dir_mask;       // $23
   uint8_t flags;                 // $4 $5 $20 $21 $22 as BITFLAG_*
 } settings_t;
+_Static_assert(offsetof(settings_t, steps_per_deg) == 0 && offsetof(settings_t, max_rate) == N_AXIS * sizeof(float) &&
+               offsetof(settings_t, acceleration) == 2 * N_AXIS * sizeof(float) &&
+               offsetof(settings_t, max_travel) == 3 * N_AXIS * sizeof(float) &&
+               offsetof(settings_t, backlash) == 4 * N_AXIS * sizeof(float), "the per-axis groups open settings_t");
 
 // '$0'..'$27': {number, SET_*, offset in settings_t or flag bit, limit}, in
 // program memory; the limit is the mask of a SET_U8 (0: checked in code) and
