@@ -25,7 +25,10 @@
 extern "C" {
 #endif
 
-#define PI_API_VERSION 1
+/* Raised whenever a struct here changes layout (2: pi_result.circle); it is
+ * also the shared library's soname version (host/Makefile reads it here), so
+ * a program built against an older layout does not load this one. */
+#define PI_API_VERSION 2
 #define PI_ERR_LEN     256
 
 /* Default limit on decoded frame size (pixels); larger frames are refused. */
