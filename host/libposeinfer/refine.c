@@ -1248,119 +1248,29 @@ RF_BODY void fit_sums_body(const rf_work *w, long npad, int nch, double q[3][20]
         }
 }
 #if defined(RF_X86_GCC) && RF_VL == 16
-/* fit_sums_body with AVX2: its 8 double lanes as two vectors of 4, each
- * half on its own, and the sums of T^2 m apart from those of T and T obs,
- * so that the sums stay in the 16 registers (the generic vectors spill
- * most of them). Each lane adds the same products in the same order. */
-__attribute__((target("avx2"), optimize("fp-contract=off"))) static void
-fit_sums_avx2(const rf_work *w, long npad, int nch, double q[3][20])
-{
-    const float *nx = w->a[A_NX], *ny = w->a[A_NY], *nz = w->a[A_NZ];
-    for (int c = 0; c < nch; c++) {
-        const float *tv = w->a[A_V0 + c], *ov = w->a[A_O0 + c];
-        __m256d acc[2][18];
-        for (int h = 0; h < 2; h++) {
-            __m256d s[10];
-            for (int i = 0; i < 10; i++) s[i] = _mm256_setzero_pd();
-            for (long k = 4 * h; k < npad; k += 8) {
-                __m256d n0 = _mm256_cvtps_pd(_mm_load_ps(nx + k)),
-                        n1 = _mm256_cvtps_pd(_mm_load_ps(ny + k)),
-                        n2 = _mm256_cvtps_pd(_mm_load_ps(nz + k));
-                __m256d t = _mm256_cvtps_pd(_mm_load_ps(tv + k)), t2 = t * t;
-                s[0] += t2;
-                s[1] += t2 * n0;
-                s[2] += t2 * n1;
-                s[3] += t2 * n2;
-                s[4] += t2 * (n0 * n0);
-                s[5] += t2 * (n0 * n1);
-                s[6] += t2 * (n0 * n2);
-                s[7] += t2 * (n1 * n1);
-                s[8] += t2 * (n1 * n2);
-                s[9] += t2 * (n2 * n2);
-            }
-            memcpy(acc[h], s, sizeof s);
-            for (int i = 0; i < 8; i++) s[i] = _mm256_setzero_pd();
-            for (long k = 4 * h; k < npad; k += 8) {
-                __m256d n0 = _mm256_cvtps_pd(_mm_load_ps(nx + k)),
-                        n1 = _mm256_cvtps_pd(_mm_load_ps(ny + k)),
-                        n2 = _mm256_cvtps_pd(_mm_load_ps(nz + k));
-                __m256d t = _mm256_cvtps_pd(_mm_load_ps(tv + k)),
-                        to = t * _mm256_cvtps_pd(_mm_load_ps(ov + k));
-                s[0] += t;
-                s[1] += t * n0;
-                s[2] += t * n1;
-                s[3] += t * n2;
-                s[4] += to;
-                s[5] += to * n0;
-                s[6] += to * n1;
-                s[7] += to * n2;
-            }
-            memcpy(acc[h] + 10, s, 8 * sizeof s[0]);
-        }
-        for (int i = 0; i < 18; i++) {
-            double sum = 0;
-            for (int l = 0; l < 8; l++) sum += acc[l / 4][i][l % 4];
-            q[c][i] = sum;
-        }
-    }
-}
-#endif
-#if defined(RF_X86_GCC) && RF_VL == 16
-/* The same for the baseline (SSE2): the 8 lanes as four vectors of 2, each
- * quarter on its own. */
+/* fit_sums_body with AVX2 (its 8 double lanes as two vectors of 4) and for
+ * the baseline, SSE2 (four vectors of 2): one body, refine_fit_sums.h. */
+#define FS_NAME    fit_sums_avx2
+#define FS_ATTR    __attribute__((target("avx2"), optimize("fp-contract=off")))
+#define FS_VD      __m256d
+#define FS_W       4
+#define FS_LOAD(p) _mm256_cvtps_pd(_mm_load_ps(p))
+#define FS_ZERO    _mm256_setzero_pd()
+#include "refine_fit_sums.h"
+
 typedef double vd2 __attribute__((vector_size(2 * sizeof(double))));
 typedef float vf2x __attribute__((vector_size(2 * sizeof(float))));
 static inline vd2 vd2load(const float *p)
 {
     return __builtin_convertvector(*(const vf2x *)p, vd2);
 }
-__attribute__((optimize("fp-contract=off"))) static void fit_sums_sse2(const rf_work *w, long npad,
-                                                                       int nch, double q[3][20])
-{
-    const float *nx = w->a[A_NX], *ny = w->a[A_NY], *nz = w->a[A_NZ];
-    for (int c = 0; c < nch; c++) {
-        const float *tv = w->a[A_V0 + c], *ov = w->a[A_O0 + c];
-        vd2 acc[4][18];
-        for (int h = 0; h < 4; h++) {
-            vd2 s[10];
-            for (int i = 0; i < 10; i++) s[i] = (vd2){0};
-            for (long k = 2 * h; k < npad; k += 8) {
-                vd2 n0 = vd2load(nx + k), n1 = vd2load(ny + k), n2 = vd2load(nz + k);
-                vd2 t = vd2load(tv + k), t2 = t * t;
-                s[0] += t2;
-                s[1] += t2 * n0;
-                s[2] += t2 * n1;
-                s[3] += t2 * n2;
-                s[4] += t2 * (n0 * n0);
-                s[5] += t2 * (n0 * n1);
-                s[6] += t2 * (n0 * n2);
-                s[7] += t2 * (n1 * n1);
-                s[8] += t2 * (n1 * n2);
-                s[9] += t2 * (n2 * n2);
-            }
-            memcpy(acc[h], s, sizeof s);
-            for (int i = 0; i < 8; i++) s[i] = (vd2){0};
-            for (long k = 2 * h; k < npad; k += 8) {
-                vd2 n0 = vd2load(nx + k), n1 = vd2load(ny + k), n2 = vd2load(nz + k);
-                vd2 t = vd2load(tv + k), to = t * vd2load(ov + k);
-                s[0] += t;
-                s[1] += t * n0;
-                s[2] += t * n1;
-                s[3] += t * n2;
-                s[4] += to;
-                s[5] += to * n0;
-                s[6] += to * n1;
-                s[7] += to * n2;
-            }
-            memcpy(acc[h] + 10, s, 8 * sizeof s[0]);
-        }
-        for (int i = 0; i < 18; i++) {
-            double sum = 0;
-            for (int l = 0; l < 8; l++) sum += acc[l / 2][i][l % 2];
-            q[c][i] = sum;
-        }
-    }
-}
+#define FS_NAME    fit_sums_sse2
+#define FS_ATTR    __attribute__((optimize("fp-contract=off")))
+#define FS_VD      vd2
+#define FS_W       2
+#define FS_LOAD(p) vd2load(p)
+#define FS_ZERO    ((vd2){0})
+#include "refine_fit_sums.h"
 #endif
 RF_VERSIONS_HAND(void, fit_sums, (const rf_work *w, long npad, int nch, double q[3][20]),
                  (w, npad, nch, q), fit_sums_avx2, fit_sums_sse2)
