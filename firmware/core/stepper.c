@@ -100,6 +100,10 @@ uint8_t st_is_running(void)
 
 void st_wake_up(void)
 {
+  // The segment prep can fault (ALARM:10, drivers off) in the st_prep_buffer
+  // every cycle start calls just before this: the drivers then stay off and
+  // the timer stopped until the reset clears the fault.
+  if (sys_fault) return;
   idle_pending = 0;
   board_stepper_enable(1);
   st.step_outbits = step_port_invert_mask;

@@ -7,12 +7,14 @@
 #include "serial.h"   // serial_tx_isr, serial_rx_isr
 #include "stepper.h"  // st_isr
 #include "limits.h"   // limits_pin_change_isr
+#include "system.h"   // sys_fault
 
 uint8_t host_eeprom[HOST_EEPROM_SIZE];
 int32_t host_motor_steps[3];
 uint8_t host_limit_raw = 7;
 int32_t host_limit_at[3] = {INT32_MAX, INT32_MAX, INT32_MAX};
 uint8_t host_stepper_enabled;
+uint8_t host_enabled_in_fault;
 uint64_t host_cycles;
 uint32_t host_max_step_rate_hz;
 uint8_t host_watchdog_reset;
@@ -42,6 +44,7 @@ void host_reset_board(void)
   timer_on = 0;
   n_sched = 0;
   host_stepper_enabled = 0;
+  host_enabled_in_fault = 0;
   limits_irq_on = 0;
   in_idle = 0;
   irq_off = 0;
@@ -87,7 +90,11 @@ size_t host_output(char *buf, size_t n)
 uint8_t board_eeprom_read(uint16_t addr) { return addr < HOST_EEPROM_SIZE ? host_eeprom[addr] : 0xff; }
 void board_eeprom_write(uint16_t addr, uint8_t v) { if (addr < HOST_EEPROM_SIZE) host_eeprom[addr] = v; }
 
-void board_stepper_enable(uint8_t on) { host_stepper_enabled = on; }
+void board_stepper_enable(uint8_t on)
+{
+  host_stepper_enabled = on;
+  if (on && sys_fault) host_enabled_in_fault = 1;
+}
 void board_stepper_config(uint8_t pulse_us, uint8_t step_idle_bits, uint8_t enable_invert)
 {
   step_idle = step_idle_bits;

@@ -14,6 +14,7 @@ extern int32_t host_motor_steps[3];     // integrated from STEP/DIR edges
 extern uint8_t host_limit_raw;          // limit pin levels (bit i = axis i, 1 = high = open)
 extern int32_t host_limit_at[3];        // model: switch closes when motor steps >= this (INT32_MAX = none)
 extern uint8_t host_stepper_enabled;
+extern uint8_t host_enabled_in_fault;   // tests: drivers switched on while a fault stood (must never be)
 extern uint64_t host_cycles;            // simulated CPU cycles
 extern uint32_t host_max_step_rate_hz;  // highest step rate seen (from timer periods)
 extern uint8_t host_watchdog_reset;     // what board_reset_cause_watchdog reports

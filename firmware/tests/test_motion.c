@@ -255,6 +255,9 @@ static void expect_prep_fault(const char *line)
   assert_non_null(strstr(out, "ALARM:10\r\n[MSG:Fault: internal error, drivers disabled]"));
   assert_int_equal(host_motor_steps[0], 0);
   assert_int_equal(sys_position[0], 0);
+  // the drivers stay off from the fault to the reset (the cycle start that
+  // prepared the faulting segment must not switch them on after it)
+  assert_int_equal(host_enabled_in_fault, 0);
 }
 
 static void test_segment_beyond_its_step_count_faults(void **state)
