@@ -795,7 +795,7 @@ fail:
 
 /* The circle after refinement (docs/refine.md): the texture fixes the
  * refined radius within about 0.1 %; where it differs from the localisation's
- * by more than RF_RIM_CHECK_PCT %, the localisation's circle is off, and the
+ * by more than RF_RIM_CHECK_PCT %, the localisation's circle is likely off, and the
  * rim found from the refined circle is the sphere's (sphere-crop-v2; the
  * localisation's stands when shim_rim_from finds no rim or fails). */
 static void rim_check(pi_ctx *ctx, const pi_frame *frame, pi_result *res)

@@ -9,9 +9,6 @@ than RIM_CHECK_PCT percent, the printed circle is the rim found from the refined
   one arc (0.9 px off, 0.6 % large).
 
 The C runtime prints the circle the Python reference prints (`python -m training.refine run`)."""
-import json
-import subprocess
-
 import cv2
 import numpy as np
 import pytest
@@ -19,7 +16,7 @@ import pytest
 from training import preprocess as pp
 from training import refine as rf
 from training.export import onnx_session, read_metadata
-from v2_raycast_cases import CAMERA, MODEL, circle_error, params, render_seeded
+from v2_raycast_cases import CAMERA, MODEL, circle_error, params, poseinfer_lines, render_seeded
 
 CASES = [(("edge", 95, "-9.272_9.416_12.572.png"), 426),
          (("edge", 78, "2.571_10.142_24.749.png"), 439),
@@ -46,14 +43,8 @@ def test_rim_from_a_near_circle(frames):
 
 
 def test_printed_circle_is_the_rim_in_c_and_python(frames, tmp_path, poseinfer, timeout_scale):
-    cam = tmp_path / "camera.json"
-    cam.write_text(json.dumps(CAMERA))
-    paths = [str(path) for path, _ in frames]
-    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam),
-                           "--timings"] + paths, capture_output=True, text=True,
-                          timeout=120 * timeout_scale)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    lines = [json.loads(s) for s in proc.stdout.splitlines()]
+    lines = poseinfer_lines(poseinfer, [path for path, _ in frames], tmp_path, ("--timings",),
+                            timeout_scale)
     meta = read_metadata(MODEL)
     sess = onnx_session(MODEL, 1)
     ref = rf.Refiner(meta, CAMERA)

@@ -93,18 +93,25 @@ def circle_error(found, truth):
     return math.hypot(found[0] - truth[0], found[1] - truth[1]), abs(found[2] / truth[2] - 1) * 100
 
 
-def assert_same_circles_in_c(poseinfer, paths, tmp_path, timeout_scale=1.0):
-    """poseinfer (conftest's fixture) prints the circle Python finds, for every frame of one run:
-    unrefined, as a confident refined answer's circle can be the rim found from the refined
-    circle instead (test_v2_rim_check.py)."""
+def poseinfer_lines(poseinfer, paths, tmp_path, options=(), timeout_scale=1.0):
+    """poseinfer's result lines (conftest's fixture) for the frames, one run with the reference
+    camera file and `options`; it must answer every frame, in order."""
     cam = Path(tmp_path) / "camera.json"
     cam.write_text(json.dumps(CAMERA))
-    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam), "--no-refine"]
+    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam), *options]
                           + [str(path) for path in paths], capture_output=True, text=True,
                           timeout=120 * timeout_scale)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     lines = [json.loads(s) for s in proc.stdout.splitlines()]
     assert [line["file"] for line in lines] == [str(path) for path in paths], proc.stdout
+    return lines
+
+
+def assert_same_circles_in_c(poseinfer, paths, tmp_path, timeout_scale=1.0):
+    """poseinfer (conftest's fixture) prints the circle Python finds, for every frame of one run:
+    unrefined, as a confident refined answer's circle can be the rim found from the refined
+    circle instead (test_v2_rim_check.py)."""
+    lines = poseinfer_lines(poseinfer, paths, tmp_path, ("--no-refine",), timeout_scale)
     p = params()
     for path, line in zip(paths, lines):
         cx, cy, r, _ = pp.find_sphere(cv2.imread(str(path), cv2.IMREAD_COLOR), p, CAMERA)
