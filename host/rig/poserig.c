@@ -540,9 +540,11 @@ static int measure_pose(const rig_args *a, rig_run *r, int i)
         row->refine_ms = res.refine_ms;
         snprintf(row->note, sizeof(row->note), "%s", res.confident ? "" : res.note);
     }
-    row->cx = res.cx;
-    row->cy = res.cy;
-    row->r = res.r;
+    /* the circle poseinfer prints (checked against the refined radius,
+     * docs/refine.md), in the CSV's OpenCV pixel centres */
+    row->cx = res.circle[0] - 0.5;
+    row->cy = res.circle[1] - 0.5;
+    row->r = res.circle[2];
     rig_pose_errors(row->est, row->cmd, row->err);
     row->geo = rig_geodesic_deg(row->est, row->cmd);
     row->ok = 1;

@@ -77,7 +77,7 @@ int rig_write_csv(const char *path, const rig_row *rows, int n, char *err)
                 r->cmd[1], r->cmd[2], r->mpos[0], r->mpos[1], r->mpos[2], r->wpos[0], r->wpos[1],
                 r->wpos[2]);
         if (r->ok)
-            fprintf(f, "%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.1f,%.1f,%.1f,", r->est[0], r->est[1],
+            fprintf(f, "%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.3f,%.3f,%.3f,", r->est[0], r->est[1],
                     r->est[2], r->err[0], r->err[1], r->err[2], r->geo, r->cx, r->cy, r->r);
         else
             fputs(",,,,,,,,,,", f);

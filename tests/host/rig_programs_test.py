@@ -484,6 +484,36 @@ def check_table(table, rows):
                                              e[:, k].max()], abs=2e-3)
 
 
+def test_poserig_reports_the_printed_circle(tmp_path, fake, camera, poseinfer, timeout_scale):
+    """poses.csv's sphere_cx/cy/r are the circle poseinfer prints (`circle`, less 0.5 on x and y),
+    also where that is the rim found from the refined circle rather than the localisation's: the
+    shipped model on frames whose localisation is 0.9-1.9 px off (v2_raycast_cases
+    RIM_CHECK_CASES)."""
+    import json
+    from v2_raycast_cases import CAMERA, MODEL, RIM_CHECK_CASES, poseinfer_lines, render_seeded
+    frames = render_seeded(tmp_path, RIM_CHECK_CASES)
+    cam_file = tmp_path / "camera.json"
+    cam_file.write_text(json.dumps(CAMERA))
+    plan = tmp_path / "plan.csv"
+    plan.write_text("".join(f"{k},0,0\n" for k in range(len(frames))))
+    f = fake(BANNER + "\nauto 1\n")
+    cam = camera([path.read_bytes() for path, _ in frames])
+    out = tmp_path / "run"
+    r = poserig("--port", f.pty, "--camera", f"unix:{cam.path}", "--model", MODEL, "--camera-file",
+                cam_file, "--plan", plan, "--settle", 0, "--out", out, timeout=120 * timeout_scale)
+    assert r.returncode == 0, r.stderr
+    rows = read_rows(out)
+    lines = poseinfer_lines(poseinfer, [path for path, _ in frames], tmp_path, ("--timings",),
+                            timeout_scale)
+    for row, line in zip(rows, lines):
+        assert row["confident"] == "true", row
+        got = [float(row[k]) for k in ("sphere_cx", "sphere_cy", "sphere_r")]
+        c = line["circle"]
+        assert got == pytest.approx([c[0] - 0.5, c[1] - 0.5, c[2]], abs=2e-3), (row, line)
+        # not the localisation's circle (--timings' cx, cy, r): what this guards
+        assert max(abs(got[0] - line["cx"]), abs(got[1] - line["cy"])) > 0.3, (row, line)
+
+
 def test_poserig_flagged_pose_reported_apart(tmp_path, fake, camera, judging_model):
     """A model with its texture judges every pose: `confident`, `residual` and `note` in poses.csv;
     a flagged pose is listed apart and left out of the confident statistics, which come first,

@@ -16,11 +16,8 @@ import pytest
 from training import preprocess as pp
 from training import refine as rf
 from training.export import onnx_session, read_metadata
-from v2_raycast_cases import CAMERA, MODEL, circle_error, params, poseinfer_lines, render_seeded
-
-CASES = [(("edge", 95, "-9.272_9.416_12.572.png"), 426),
-         (("edge", 78, "2.571_10.142_24.749.png"), 439),
-         (("rig-unseen", 64, "-6.669_-13.109_12.519.png"), 439)]
+from v2_raycast_cases import (CAMERA, MODEL, RIM_CHECK_CASES as CASES, circle_error, params,
+                              poseinfer_lines, render_seeded)
 
 
 @pytest.fixture(scope="module")
