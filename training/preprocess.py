@@ -199,6 +199,28 @@ SECOND_WEAK = 0.33
 WEAK_SHARE = 0.5
 TEXTURE_TOL = 1.0
 
+# A second circle is a second sphere only when its colours are the sphere's (_alike): a clutter
+# disk, a helmet or an engine cover of the sphere's size beside it is not, and which circle to
+# measure is then clear. The colours of a circle: COLOUR_RINGS rings of samples on its rays, at
+# equal areas out to 0.8 of its radius (bilinear, those in the frame), each sample coloured
+# (largest minus smallest channel above COLOUR_SAT of the largest) in one of 12 hue bins of 30
+# degrees, or else dark (largest channel below COLOUR_DARK of the circle's 95th percentile of it)
+# or light; the shares of the 14 bins. Two circles whose shares differ by more than COLOUR_TOL in
+# all (the L1 distance, 0 to 2) are not the same printed texture, whatever its pose, light or
+# size. Measured (docs/bench/localise.md): over the 369 frames to refuse with two spheres among
+# seeds 475-478 and 483-490 the distance is at most 0.504 (p99 0.40), over the 296 `two-edge`
+# frames refused as two spheres (seeds 500-502, the second sphere 10-45 % outside the frame) at most
+# 0.512; the five circles called second spheres beside a sphere that must be answered on those
+# seeds and seeds 604-606 of `rig-photo` (two clutter ellipses, a helmet, an engine cover, a clutter
+# circle) 0.977-1.521. It applies to well supported second circles (_second) and to weak ones
+# (_weak_second) alike; no other frame of those changes.
+# Constants of the algorithm, not model parameters; crop2.cpp has the same (colour_rings,
+# colour_sat, colour_dark, colour_tol).
+COLOUR_RINGS = 8
+COLOUR_SAT = 0.35
+COLOUR_DARK = 0.35
+COLOUR_TOL = 0.75
+
 # A second sphere partly outside the frame has its edges in the frame only, and where its limb
 # darkens over a dark backdrop few of those: its coarse peak can fall below cand_frac of the
 # sphere's and get no fit at all (a held-out `refuse` frame of seed 462: a second sphere a quarter
@@ -1454,10 +1476,41 @@ def _apart(a, b, p):
     return max(a[2], b[2]) <= (1.0 + 2.0 * p["r_tol"]) * min(a[2], b[2])
 
 
+def _colours(img, dirs, c):
+    """The shares of circle c's samples in the 14 colour bins of COLOUR_RINGS (12 hues, dark,
+    light); None with fewer than 64 samples in the frame."""
+    rho = np.array([c[2] * 0.8 * math.sqrt((i + 0.5) / COLOUR_RINGS) for i in range(COLOUR_RINGS)],
+                   np.float64)
+    v = _sample(img, c[0] + rho[None, :] * dirs[:, 0:1], c[1] + rho[None, :] * dirs[:, 1:2])
+    v = v.reshape(-1, 3)
+    v = v[~np.isnan(v).any(axis=1)]
+    n = len(v)
+    if n < 64:
+        return None
+    b, g, r = v[:, 0], v[:, 1], v[:, 2]
+    mx, mn = v.max(axis=1), v.min(axis=1)
+    vref = np.sort(mx)[int(math.floor(0.95 * (n - 1)))]
+    col = (mx - mn) > COLOUR_SAT * mx
+    d = np.where(col, mx - mn, 1.0)
+    h = np.where(mx == r, (g - b) / d, np.where(mx == g, 2.0 + (b - r) / d, 4.0 + (r - g) / d)) * 60.0
+    h = np.where(h < 0.0, h + 360.0, h)
+    counts = np.bincount(np.minimum(np.floor(h[col] / 30.0), 11.0).astype(np.int64), minlength=12)
+    dark = ~col & (mx < COLOUR_DARK * vref)
+    counts = counts.tolist() + [int(dark.sum()), int((~col & ~dark).sum())]
+    return [k / n for k in counts]
+
+
+def _alike(img, dirs, a, b):
+    """Whether circle b's colours are sphere a's (_colours within COLOUR_TOL), or either circle has
+    too few samples in the frame to tell."""
+    ca, cb = _colours(img, dirs, a), _colours(img, dirs, b)
+    return ca is None or cb is None or _seqsum([abs(x - y) for x, y in zip(ca, cb)]) <= COLOUR_TOL
+
+
 def _second(img, dirs, a, b, p):
     """Whether circle b is a second sphere beside sphere a: apart (_apart), b's inside not flat
-    where a's is shaded (_flat)."""
-    return _apart(a, b, p) and not _flat(img, dirs, a, b, p)
+    where a's is shaded (_flat), its colours a's (_alike)."""
+    return _apart(a, b, p) and not _flat(img, dirs, a, b, p) and _alike(img, dirs, a, b)
 
 
 def _second_beside(img, dirs, a, b, p):
@@ -1477,15 +1530,15 @@ def _texture_steps(img, dirs, c, p):
 def _weak_second(img, dirs, a, b, p):
     """Whether circle b, below min_support, is a second sphere beside sphere a by its likeness to
     it (see SECOND_WEAK): apart, lit as a is (shading above 1 at least WEAK_SHARE of a's, a's at
-    least LIMB_MIN), its texture within TEXTURE_TOL of a's, and its beside support at least
-    SECOND_WEAK (computed last: it is costly)."""
+    least LIMB_MIN), its texture within TEXTURE_TOL of a's, its colours a's (_alike), and its
+    beside support at least SECOND_WEAK (computed last: it is costly)."""
     if not _apart(a, b, p):
         return False
     s = _shadings(img, dirs, a, b, p)
     if s is None or not s[1] - 1.0 >= WEAK_SHARE * (s[0] - 1.0):
         return False
     ta, tb = _texture_steps(img, dirs, a, p), _texture_steps(img, dirs, b, p)
-    if ta is None or tb is None or not abs(ta - tb) <= TEXTURE_TOL:
+    if ta is None or tb is None or not abs(ta - tb) <= TEXTURE_TOL or not _alike(img, dirs, a, b):
         return False
     return _beside_support(img, dirs, a, b, p) >= SECOND_WEAK
 

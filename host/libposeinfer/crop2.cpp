@@ -2246,12 +2246,94 @@ bool apart(const Found &a, const Found &b, const pp_params *p)
     return std::max(a.r, b.r) <= (1.0 + 2.0 * p->r_tol) * std::min(a.r, b.r);
 }
 
+// A second circle is a second sphere only when its colours are the
+// sphere's: the shares of colour_rings rings of samples at equal areas out
+// to 0.8 r in 12 hue bins, dark or light, within colour_tol in all
+// (preprocess.py COLOUR_RINGS, COLOUR_SAT, COLOUR_DARK, COLOUR_TOL: the same
+// values, and their measured reason).
+constexpr int colour_rings = 8;
+constexpr double colour_sat = 0.35;
+constexpr double colour_dark = 0.35;
+constexpr double colour_tol = 0.75;
+
+// The shares of circle c's samples (bilinear, those in the frame) in the 14
+// colour bins: a hue bin of 30 degrees when coloured (largest minus smallest
+// channel above colour_sat of the largest), else dark (largest channel below
+// colour_dark of the samples' 95th percentile of it) or light (preprocess.py
+// _colours). False with fewer than 64 samples in the frame.
+static bool colours(const Frame &f, const std::vector<double> &dirs, const Found &c,
+                    double share[14])
+{
+    const int K = (int)dirs.size() / 2;
+    double rho[colour_rings], in_rho[colour_rings], fx[colour_rings], fy[colour_rings],
+        v[3 * colour_rings];
+    uint64_t wa[colour_rings], wb[colour_rings];
+    thread_local std::vector<double> bgr, mx;
+    for (int i = 0; i < colour_rings; i++) rho[i] = c.r * 0.8 * std::sqrt((i + 0.5) / colour_rings);
+    bgr.clear();
+    for (int k = 0; k < K; k++) {
+        const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
+        size_t m = 0;
+        for (int i = 0; i < colour_rings; i++)
+            if (inside(f, c.cx + rho[i] * ux, c.cy + rho[i] * uy)) in_rho[m++] = rho[i];
+        if (!m) continue;
+        ray_gather(f.p, (int64_t)f.stride, c.cx, c.cy, ux, uy, in_rho, m, fx, fy, wa, wb);
+        bilinear3(wa, wb, fx, fy, m, v);
+        for (size_t j = 0; j < m; j++) {
+            bgr.push_back(v[j]);
+            bgr.push_back(v[m + j]);
+            bgr.push_back(v[2 * m + j]);
+        }
+    }
+    const size_t n = bgr.size() / 3;
+    if (n < 64) return false;
+    mx.resize(n);
+    for (size_t j = 0; j < n; j++)
+        mx[j] = std::max(std::max(bgr[3 * j], bgr[3 * j + 1]), bgr[3 * j + 2]);
+    std::vector<double> srt(mx);
+    const size_t q = (size_t)std::floor(0.95 * (double)(n - 1));
+    std::nth_element(srt.begin(), srt.begin() + (long)q, srt.end());
+    const double vref = srt[q];
+    long counts[14] = {0};
+    for (size_t j = 0; j < n; j++) {
+        const double b = bgr[3 * j], g = bgr[3 * j + 1], r = bgr[3 * j + 2], hi = mx[j];
+        const double lo = std::min(std::min(b, g), r);
+        if (hi - lo > colour_sat * hi) {
+            const double d = hi - lo;
+            double h = (hi == r   ? (g - b) / d
+                        : hi == g ? 2.0 + (b - r) / d
+                                  : 4.0 + (r - g) / d) *
+                       60.0;
+            if (h < 0.0) h += 360.0;
+            counts[(int)std::min(std::floor(h / 30.0), 11.0)]++;
+        } else if (hi < colour_dark * vref) {
+            counts[12]++;
+        } else {
+            counts[13]++;
+        }
+    }
+    for (int i = 0; i < 14; i++) share[i] = (double)counts[i] / (double)n;
+    return true;
+}
+
+// Whether circle b's colours are sphere a's (colours within colour_tol, the
+// shares' differences summed in order), or either circle has too few samples
+// in the frame to tell (preprocess.py _alike).
+static bool alike(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b)
+{
+    double ca[14], cb[14];
+    if (!colours(f, dirs, a, ca) || !colours(f, dirs, b, cb)) return true;
+    double t = 0.0;
+    for (int i = 0; i < 14; i++) t += std::fabs(ca[i] - cb[i]);
+    return t <= colour_tol;
+}
+
 // Whether circle b is a second sphere beside sphere a: apart, b's inside not
-// flat where a's is shaded (preprocess.py _second).
+// flat where a's is shaded, its colours a's (preprocess.py _second).
 bool second(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
             const pp_params *p)
 {
-    return apart(a, b, p) && !flat(f, dirs, a, b, p);
+    return apart(a, b, p) && !flat(f, dirs, a, b, p) && alike(f, dirs, a, b);
 }
 
 // second, and b's beside support at least min_support (computed last, only then: it is costly;
@@ -2282,7 +2364,7 @@ bool texture_steps(const Frame &f, const std::vector<double> &dirs, const Found 
 }
 
 // Whether circle b, below min_support, is a second sphere beside sphere a by
-// its likeness to it: apart, lit as a is, textured as a is, and its beside
+// its likeness to it: apart, lit as a is, textured and coloured as a is, and its beside
 // support at least second_weak (computed last: it is costly; preprocess.py
 // _weak_second). *spare: scratch.
 bool weak_second(const Frame &f, const std::vector<double> &dirs, const Found &a, const Found &b,
@@ -2293,7 +2375,7 @@ bool weak_second(const Frame &f, const std::vector<double> &dirs, const Found &a
     if (!shadings(f, dirs, a, b, p, &sa, &sb) || !(sb - 1.0 >= weak_share * (sa - 1.0)))
         return false;
     if (!texture_steps(f, dirs, a, p, &ta) || !texture_steps(f, dirs, b, p, &tb) ||
-        !(std::fabs(ta - tb) <= texture_tol))
+        !(std::fabs(ta - tb) <= texture_tol) || !alike(f, dirs, a, b))
         return false;
     return beside_support(f, dirs, a, b, p, spare) >= second_weak;
 }

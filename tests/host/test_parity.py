@@ -197,8 +197,9 @@ def test_v2_finds_the_true_circle_through_a_lens(run, models, v2_frames, tmp_pat
 
 def test_v2_errors_on_both_sides(run, models, tmp_path):
     rng = np.random.default_rng(70)
-    b1, w1 = rc.drawn_sphere(H, W, 170.0, 250.0, 100.0, rng)
-    b2, w2 = rc.drawn_sphere(H, W, 470.0, 260.0, 105.0, rng)
+    # two spheres of one texture: the same draws (colours and blobs) for both
+    b1, w1 = rc.drawn_sphere(H, W, 170.0, 250.0, 100.0, np.random.default_rng(69))
+    b2, w2 = rc.drawn_sphere(H, W, 470.0, 260.0, 105.0, np.random.default_rng(69))
     cases = {
         "flat.png": (np.full((H, W, 3), 90, np.uint8), "no sphere found in frame"),
         "clutter.png": (rc.finish(rc.clutter(rng, H, W), rng), "no sphere found in frame"),

@@ -50,7 +50,8 @@ def test_the_known_constants_are_read():
     changed pattern that finds nothing on either side fails here, not silently above)."""
     known = {"grow_rounds", "limb_share", "limb_min", "second_in_frame", "cut_shade", "second_retry",
              "wide_out", "wide_below", "orient_slopes", "stripe_share", "stripe_drop",
-             "second_weak", "weak_share", "texture_tol", "rim_near", "weak_peak"}
+             "second_weak", "weak_share", "texture_tol", "rim_near", "weak_peak", "colour_rings",
+             "colour_sat", "colour_dark", "colour_tol"}
     assert known <= set(python_constants()) and known <= set(cpp_constants())
 
 

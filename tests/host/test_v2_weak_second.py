@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import CAMERA, MODEL, assert_within_limits, params, render_seeded
+from v2_raycast_cases import CAMERA, MODEL, assert_within_limits, params, render_seeded, without_colours
 
 SECOND = [(("refuse", 47, "-13.186_27.459_26.541.png"), 446),
           (("two-edge", 66, "-4.515_-6.421_-1.939.png"), 502)]
@@ -60,14 +60,18 @@ def test_weak_second_sphere_refused(frames, monkeypatch):
 
 def test_clutter_circles_stay_clutter(frames, monkeypatch):
     assert_within_limits(frames[1], params())
-    # each of the rule's tests is what keeps one of them answered
+    # each of the rule's tests is what keeps one of them answered (with the colours' test off,
+    # which keeps them answered too)
     (lit_disk, _), (dim_disk, _), (like, _) = frames[1]
+    without_colours(monkeypatch)
     monkeypatch.setattr(pp, "TEXTURE_TOL", math.inf)
     assert _error(lit_disk).startswith("two spheres in frame")
     monkeypatch.undo()
+    without_colours(monkeypatch)
     monkeypatch.setattr(pp, "WEAK_SHARE", 0.3)
     assert _error(dim_disk).startswith("two spheres in frame")
     monkeypatch.undo()
+    without_colours(monkeypatch)
     monkeypatch.setattr(pp, "SECOND_WEAK", 0.25)
     assert _error(like).startswith("two spheres in frame")
 

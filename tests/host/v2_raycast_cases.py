@@ -75,6 +75,14 @@ def assert_off_centre(imgs, frames, p, px):
         assert ec > px, (path.name, ec)
 
 
+def without_colours(monkeypatch):
+    """Every second circle's colours taken for the sphere's (_alike): a clutter circle beside the
+    sphere is then judged by the other tests alone. The colours' test also keeps many of the frames
+    that an earlier rule about second circles keeps answered; a test of such a rule switches it off
+    to show what its own rule mends."""
+    monkeypatch.setattr(pp, "_alike", lambda img, dirs, a, b: True)
+
+
 def without_rim_refit(monkeypatch):
     """The sphere's circle not refitted through the rims (_through_rims): its centre stays where
     the refit through the outermost edges put it and only its radius moves to the rim. That refit
