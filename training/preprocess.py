@@ -118,7 +118,7 @@ DEFAULTS = DEFAULTS_V2
 GROW_ROUNDS = 8
 
 # A second circle of the sphere's size is a second sphere (an error) unless its inside is flat
-# where the sphere's darkens towards its rim (_limb_shading: a lit sphere's limb is darker than
+# where the sphere's darkens towards its rim, or its colours are not the sphere's (COLOUR_TOL) (_limb_shading: a lit sphere's limb is darker than
 # its middle, and its texture's dark bands reach the rim; a disk of clutter or a pattern of the
 # backdrop is as bright at its edge as inside): its shading above 1 less than LIMB_SHARE of the
 # sphere's, when the sphere's is at least LIMB_MIN (a sphere over-exposed to its rim shows no
@@ -135,7 +135,7 @@ LIMB_MIN = 1.25
 # is judged by its rays in the frame (_in_frame_support): a circle with at least SECOND_IN_FRAME
 # of its rays in the frame (about 30 % of its rim outside at most) is a second sphere when
 # min_support of those rays support it, as a whole circle's would (with the other rules: size,
-# centres, _flat, and its rays on the sphere's disc counted as without: _beside_support).
+# centres, _flat, _alike, and its rays on the sphere's disc counted as without: _beside_support).
 # Measured on the development frames (seeds 0, 111-135, 136-140 and the training renderer's val
 # sets): the known case, a `refuse` seed 139 second sphere 20 % outside
 # the frame, has 0.77 of its rays in it (in-frame support 0.53); circles of clutter disks cut by
@@ -202,10 +202,12 @@ TEXTURE_TOL = 1.0
 # A second circle is a second sphere only when its colours are the sphere's (_alike): a clutter
 # disk, a helmet or an engine cover of the sphere's size beside it is not, and which circle to
 # measure is then clear. The colours of a circle: COLOUR_RINGS rings of samples on its rays, at
-# equal areas out to 0.8 of its radius (bilinear, those in the frame), each sample coloured
+# equal areas out to COLOUR_REACH of its radius (bilinear, those in the frame; fewer than
+# COLOUR_MIN: none, and then the circle is judged without this test), each sample coloured
 # (largest minus smallest channel above COLOUR_SAT of the largest) in one of 12 hue bins of 30
-# degrees, or else dark (largest channel below COLOUR_DARK of the circle's 95th percentile of it)
-# or light; the shares of the 14 bins. Two circles whose shares differ by more than COLOUR_TOL in
+# degrees, or else dark (largest channel below COLOUR_DARK of the circle's COLOUR_QUANTILE
+# quantile of it: dark relative to the circle itself, so that an all-black circle is all light)
+# or light; the shares of the 14 bins (hues 0-11, dark, light). Two circles whose shares differ by more than COLOUR_TOL in
 # all (the L1 distance, 0 to 2) are not the same printed texture, whatever its pose, light or
 # size. Measured (docs/bench/localise.md): over the 369 frames to refuse with two spheres among
 # seeds 475-478 and 483-490 the distance is at most 0.504 (p99 0.40), over the 296 `two-edge`
@@ -215,8 +217,11 @@ TEXTURE_TOL = 1.0
 # circle) 0.977-1.521. It applies to well supported second circles (_second) and to weak ones
 # (_weak_second) alike; no other frame of those changes.
 # Constants of the algorithm, not model parameters; crop2.cpp has the same (colour_rings,
-# colour_sat, colour_dark, colour_tol).
+# colour_reach, colour_min, colour_quantile, colour_sat, colour_dark, colour_tol).
 COLOUR_RINGS = 8
+COLOUR_REACH = 0.8
+COLOUR_MIN = 64
+COLOUR_QUANTILE = 0.95
 COLOUR_SAT = 0.35
 COLOUR_DARK = 0.35
 COLOUR_TOL = 0.75
@@ -1477,19 +1482,19 @@ def _apart(a, b, p):
 
 
 def _colours(img, dirs, c):
-    """The shares of circle c's samples in the 14 colour bins of COLOUR_RINGS (12 hues, dark,
-    light); None with fewer than 64 samples in the frame."""
-    rho = np.array([c[2] * 0.8 * math.sqrt((i + 0.5) / COLOUR_RINGS) for i in range(COLOUR_RINGS)],
-                   np.float64)
+    """The shares of circle c's samples on COLOUR_RINGS rings in the 14 colour bins (hues 0-11,
+    dark, light); None with fewer than COLOUR_MIN samples in the frame."""
+    rho = np.array([c[2] * COLOUR_REACH * math.sqrt((i + 0.5) / COLOUR_RINGS)
+                    for i in range(COLOUR_RINGS)], np.float64)
     v = _sample(img, c[0] + rho[None, :] * dirs[:, 0:1], c[1] + rho[None, :] * dirs[:, 1:2])
     v = v.reshape(-1, 3)
     v = v[~np.isnan(v).any(axis=1)]
     n = len(v)
-    if n < 64:
+    if n < COLOUR_MIN:
         return None
     b, g, r = v[:, 0], v[:, 1], v[:, 2]
     mx, mn = v.max(axis=1), v.min(axis=1)
-    vref = np.sort(mx)[int(math.floor(0.95 * (n - 1)))]
+    vref = np.sort(mx)[int(math.floor(COLOUR_QUANTILE * (n - 1)))]
     col = (mx - mn) > COLOUR_SAT * mx
     d = np.where(col, mx - mn, 1.0)
     h = np.where(mx == r, (g - b) / d, np.where(mx == g, 2.0 + (b - r) / d, 4.0 + (r - g) / d)) * 60.0

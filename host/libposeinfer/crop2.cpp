@@ -2248,10 +2248,13 @@ bool apart(const Found &a, const Found &b, const pp_params *p)
 
 // A second circle is a second sphere only when its colours are the
 // sphere's: the shares of colour_rings rings of samples at equal areas out
-// to 0.8 r in 12 hue bins, dark or light, within colour_tol in all
-// (preprocess.py COLOUR_RINGS, COLOUR_SAT, COLOUR_DARK, COLOUR_TOL: the same
-// values, and their measured reason).
+// to colour_reach r in 12 hue bins, dark or light, within colour_tol in all
+// (preprocess.py COLOUR_RINGS ... COLOUR_TOL: the same values, and their
+// measured reason).
 constexpr int colour_rings = 8;
+constexpr double colour_reach = 0.8;
+constexpr int colour_min = 64;
+constexpr double colour_quantile = 0.95;
 constexpr double colour_sat = 0.35;
 constexpr double colour_dark = 0.35;
 constexpr double colour_tol = 0.75;
@@ -2259,8 +2262,9 @@ constexpr double colour_tol = 0.75;
 // The shares of circle c's samples (bilinear, those in the frame) in the 14
 // colour bins: a hue bin of 30 degrees when coloured (largest minus smallest
 // channel above colour_sat of the largest), else dark (largest channel below
-// colour_dark of the samples' 95th percentile of it) or light (preprocess.py
-// _colours). False with fewer than 64 samples in the frame.
+// colour_dark of the samples' colour_quantile quantile of it) or light
+// (preprocess.py _colours). False with fewer than colour_min samples in the
+// frame.
 static bool colours(const Frame &f, const std::vector<double> &dirs, const Found &c,
                     double share[14])
 {
@@ -2269,7 +2273,8 @@ static bool colours(const Frame &f, const std::vector<double> &dirs, const Found
         v[3 * colour_rings];
     uint64_t wa[colour_rings], wb[colour_rings];
     thread_local std::vector<double> bgr, mx;
-    for (int i = 0; i < colour_rings; i++) rho[i] = c.r * 0.8 * std::sqrt((i + 0.5) / colour_rings);
+    for (int i = 0; i < colour_rings; i++)
+        rho[i] = c.r * colour_reach * std::sqrt((i + 0.5) / colour_rings);
     bgr.clear();
     for (int k = 0; k < K; k++) {
         const double ux = dirs[2 * (size_t)k], uy = dirs[2 * (size_t)k + 1];
@@ -2286,12 +2291,12 @@ static bool colours(const Frame &f, const std::vector<double> &dirs, const Found
         }
     }
     const size_t n = bgr.size() / 3;
-    if (n < 64) return false;
+    if (n < (size_t)colour_min) return false;
     mx.resize(n);
     for (size_t j = 0; j < n; j++)
         mx[j] = std::max(std::max(bgr[3 * j], bgr[3 * j + 1]), bgr[3 * j + 2]);
     std::vector<double> srt(mx);
-    const size_t q = (size_t)std::floor(0.95 * (double)(n - 1));
+    const size_t q = (size_t)std::floor(colour_quantile * (double)(n - 1));
     std::nth_element(srt.begin(), srt.begin() + (long)q, srt.end());
     const double vref = srt[q];
     long counts[14] = {0};
@@ -2705,8 +2710,8 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // fits (weak_peak)
     cut_peak_fits(f, dirs, weak_peaks, s, a, p, all, bank, fits, rmin, rmax);
     // another well supported circle of about its size, neither centre inside
-    // the other circle, its inside not flat where the sphere's is shaded: a
-    // second sphere
+    // the other circle, its inside not flat where the sphere's is shaded, its
+    // colours the sphere's: a second sphere
     for (size_t i = 0; i < fits.size(); i++)
         if ((long)i != ia && second_beside(f, dirs, a, all[fits[i]], p, &bank[all.size()])) {
             two_spheres(a, all[fits[i]], err, errlen);

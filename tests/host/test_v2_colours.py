@@ -20,7 +20,7 @@ import pytest
 
 from training import preprocess as pp
 from v2_raycast_cases import (CAMERA, MODEL, assert_same_circles_in_c, assert_within_limits, params,
-                              render_seeded)
+                              render_seeded, without_colours)
 
 ANSWERED = [(("edge", 24, "-2.204_7.646_-2.286.png"), 486),
             (("edge", 85, "19.618_-9.808_28.329.png"), 490),
@@ -45,8 +45,8 @@ def test_circles_of_other_colours_are_no_second_sphere(answered, monkeypatch):
     p = params()
     imgs = assert_within_limits(answered, p)
     # without the colours' test each is called a second sphere (what this guards)
-    monkeypatch.setattr(pp, "_alike", lambda img, dirs, a, b: True)
-    for img, (path, _) in zip(imgs, answered):
+    without_colours(monkeypatch)
+    for img in imgs:
         with pytest.raises(pp.NoSphere, match="two spheres in frame"):
             pp.find_sphere(img, p, CAMERA)
 
@@ -58,27 +58,37 @@ def test_two_spheres_of_the_texture_stay_refused(refused):
         img = cv2.imread(str(path), cv2.IMREAD_COLOR)
         with pytest.raises(pp.NoSphere, match="two spheres in frame") as e:
             pp.find_sphere(img, p, CAMERA)
-        # their colours differ by less than COLOUR_TOL (0.50 and 0.51), those above by 0.98-1.52
+        # their colours differ by less than COLOUR_TOL (about 0.50 and 0.51 from the message's
+        # circles, rounded to 0.1 px), those above by 0.98-1.52
         a, b = [(float(x) - 0.5, float(y) - 0.5, float(r)) for x, y, r in
                 re.findall(r"\(([-\d.]+), ([-\d.]+)\) r ([\d.]+)", str(e.value))]
         ca, cb = pp._colours(img, dirs, a), pp._colours(img, dirs, b)
         assert 0.4 < sum(abs(x - y) for x, y in zip(ca, cb)) <= pp.COLOUR_TOL, path.name
 
 
-def test_colours_of_a_flat_and_a_cut_circle():
-    """A flat grey disc is all light, a saturated one all in its hue's bin; a circle mostly outside
-    the frame has too few samples to tell (then it may still be a second sphere)."""
-    p = params()
-    dirs = pp._ray_dirs(p["rays"])
-    frame = np.full((200, 300, 3), 120, np.uint8)
-    frame[:, 150:] = (0, 0, 200)  # pure red on the right (BGR)
-    grey = pp._colours(frame, dirs, (70.0, 100.0, 50.0))
+def test_colours_of_drawn_circles():
+    """The bins: a flat grey disc is all light; pure red, green and blue ones fall in the hue bins
+    0, 4 and 8; a disc half black and half white is half dark and half light, and an all-black one
+    all light (dark is relative to the circle's own brightest). A circle with too few samples in
+    the frame has none, and is then taken as alike."""
+    dirs = pp._ray_dirs(params()["rays"])
+    frame = np.full((200, 500, 3), 120, np.uint8)
+    for k, bgr in enumerate(((0, 0, 200), (0, 200, 0), (200, 0, 0))):
+        frame[:, 100 * (k + 1):100 * (k + 2)] = bgr
+    frame[:100, 400:], frame[100:, 400:] = 0, 255
+    disc = lambda x: (x, 100.0, 40.0)  # noqa: E731
+    grey, red, green, blue = (pp._colours(frame, dirs, disc(x)) for x in (50.0, 150.0, 250.0, 350.0))
     assert grey[13] == 1.0 and sum(grey[:13]) == 0.0
-    red = pp._colours(frame, dirs, (225.0, 100.0, 50.0))
-    assert red[0] == 1.0
-    assert pp._colours(frame, dirs, (-60.0, 100.0, 50.0)) is None
-    assert pp._alike(frame, dirs, (70.0, 100.0, 50.0), (-60.0, 100.0, 50.0))
-    assert not pp._alike(frame, dirs, (70.0, 100.0, 50.0), (225.0, 100.0, 50.0))
+    assert red[0] == 1.0 and green[4] == 1.0 and blue[8] == 1.0
+    half = pp._colours(frame, dirs, disc(450.0))
+    assert half[12] + half[13] == 1.0 and 0.4 < half[12] < 0.6, half
+    assert pp._colours(np.zeros((200, 200, 3), np.uint8), dirs, disc(100.0))[13] == 1.0
+    # 28 samples in the frame at x = -35, 68 at x = -30 (COLOUR_MIN 64)
+    assert pp._colours(frame, dirs, (-35.0, 100.0, 50.0)) is None
+    assert pp._colours(frame, dirs, (-30.0, 100.0, 50.0)) is not None
+    assert pp._alike(frame, dirs, disc(150.0), (-35.0, 100.0, 50.0))
+    assert not pp._alike(frame, dirs, disc(150.0), disc(250.0))
+    assert pp._alike(frame, dirs, disc(150.0), disc(150.0))
 
 
 def test_c_finds_the_same(answered, refused, poseinfer, tmp_path, timeout_scale):
@@ -88,7 +98,9 @@ def test_c_finds_the_same(answered, refused, poseinfer, tmp_path, timeout_scale)
     paths = [str(path) for path, _ in refused]
     proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam), *paths],
                           capture_output=True, text=True, timeout=120 * timeout_scale)
+    assert proc.returncode == 1, proc.stdout + proc.stderr  # every frame refused
     lines = [json.loads(s) for s in proc.stdout.splitlines()]
+    assert [line["file"] for line in lines] == paths, proc.stdout
     p = params()
     for path, line in zip(paths, lines):
         with pytest.raises(pp.NoSphere) as e:
