@@ -117,10 +117,11 @@ DEFAULTS = DEFAULTS_V2
 # parameter, with no default); host/libposeinfer/crop2.cpp has the same (grow_rounds).
 GROW_ROUNDS = 8
 
-# A second circle of the sphere's size is a second sphere (an error) unless its inside is flat
-# where the sphere's darkens towards its rim, or its colours are not the sphere's (COLOUR_TOL) (_limb_shading: a lit sphere's limb is darker than
-# its middle, and its texture's dark bands reach the rim; a disk of clutter or a pattern of the
-# backdrop is as bright at its edge as inside): its shading above 1 less than LIMB_SHARE of the
+# A second circle of the sphere's size is a second sphere (an error) unless its colours are not the
+# sphere's (COLOUR_TOL) or its inside is flat where the sphere's darkens towards its rim
+# (_limb_shading: a lit sphere's limb is darker than its middle, and its texture's dark bands
+# reach the rim; a disk of clutter or a pattern of the backdrop is as bright at its edge as
+# inside): its shading above 1 less than LIMB_SHARE of the
 # sphere's, when the sphere's is at least LIMB_MIN (a sphere over-exposed to its rim shows no
 # shading, and then nothing is told apart). On the development frames (the ray-caster's
 # `refuse` family, seeds 0 and 136-140: 198 second spheres in 191 frames) the first sphere's
@@ -207,17 +208,18 @@ TEXTURE_TOL = 1.0
 # (largest minus smallest channel above COLOUR_SAT of the largest) in one of 12 hue bins of 30
 # degrees, or else dark (largest channel below COLOUR_DARK of the circle's COLOUR_QUANTILE
 # quantile of it: dark relative to the circle itself, so that an all-black circle is all light)
-# or light; the shares of the 14 bins (hues 0-11, dark, light). Two circles whose shares differ by more than COLOUR_TOL in
-# all (the L1 distance, 0 to 2) are not the same printed texture, whatever its pose, light or
-# size. Measured (docs/bench/localise.md): over the 369 frames to refuse with two spheres among
-# seeds 475-478 and 483-490 the distance is at most 0.504 (p99 0.40), over the 296 `two-edge`
-# frames refused as two spheres (seeds 500-502, the second sphere 10-45 % outside the frame) at most
-# 0.512; the five circles called second spheres beside a sphere that must be answered on those
-# seeds and seeds 604-606 of `rig-photo` (two clutter ellipses, a helmet, an engine cover, a clutter
-# circle) 0.977-1.521. It applies to well supported second circles (_second) and to weak ones
-# (_weak_second) alike; no other frame of those changes.
-# Constants of the algorithm, not model parameters; crop2.cpp has the same (colour_rings,
-# colour_reach, colour_min, colour_quantile, colour_sat, colour_dark, colour_tol).
+# or light; the shares of the 14 bins (hues 0-11, dark, light). Two circles whose shares differ
+# by more than COLOUR_TOL in all (the L1 distance, 0 to 2) are not the same printed texture,
+# whatever its pose, light or size. Measured (docs/bench/localise.md): over the 369 frames to
+# refuse with two spheres among seeds 475-478 and 483-490 the distance is at most 0.504 (p99
+# 0.40), over the 296 `two-edge` frames refused as two spheres (seeds 500-502, the second sphere
+# 10-45 % outside the frame) at most 0.512; the five circles called second spheres beside a sphere
+# that must be answered on those seeds and seeds 604-606 of `rig-photo` (two clutter ellipses, a
+# helmet, an engine cover, a clutter circle) 0.977-1.521. It applies to well supported second
+# circles (_second) and to weak ones (_weak_second) alike; no other frame of those changes (a mono
+# camera's frames have dark and light only: there it tells little). Constants of the algorithm,
+# not model parameters; crop2.cpp has the same (colour_rings, colour_reach, colour_min,
+# colour_quantile, colour_sat, colour_dark, colour_tol).
 COLOUR_RINGS = 8
 COLOUR_REACH = 0.8
 COLOUR_MIN = 64
