@@ -2253,7 +2253,7 @@ bool apart(const Found &a, const Found &b, const pp_params *p)
 // measured reason).
 constexpr int colour_rings = 8;
 constexpr double colour_reach = 0.8;
-constexpr int colour_min = 64;
+constexpr double colour_in_frame = 0.9;
 constexpr double colour_quantile = 0.95;
 constexpr double colour_sat = 0.35;
 constexpr double colour_dark = 0.35;
@@ -2263,8 +2263,8 @@ constexpr double colour_tol = 0.75;
 // colour bins: a hue bin of 30 degrees when coloured (largest minus smallest
 // channel above colour_sat of the largest), else dark (largest channel below
 // colour_dark of the samples' colour_quantile quantile of it) or light
-// (preprocess.py _colours). False with fewer than colour_min samples in the
-// frame.
+// (preprocess.py _colours). False with fewer than colour_in_frame of them in
+// the frame.
 static bool colours(const Frame &f, const std::vector<double> &dirs, const Found &c,
                     double share[14])
 {
@@ -2291,7 +2291,7 @@ static bool colours(const Frame &f, const std::vector<double> &dirs, const Found
         }
     }
     const size_t n = bgr.size() / 3;
-    if (n < (size_t)colour_min) return false;
+    if ((double)n < colour_in_frame * (double)(K * colour_rings)) return false;
     mx.resize(n);
     for (size_t j = 0; j < n; j++)
         mx[j] = std::max(std::max(bgr[3 * j], bgr[3 * j + 1]), bgr[3 * j + 2]);
