@@ -2172,7 +2172,7 @@ constexpr double second_retry = 0.25;
 // the sphere: shading above 1 at least weak_share of the sphere's, texture
 // within texture_tol of it (preprocess.py SECOND_WEAK, WEAK_SHARE,
 // TEXTURE_TOL: the same values, and their measured reason).
-constexpr double second_weak = 0.33;
+constexpr double second_weak = 0.30;
 constexpr double weak_share = 0.5;
 constexpr double texture_tol = 1.0;
 
