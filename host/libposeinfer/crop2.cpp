@@ -2272,7 +2272,7 @@ static bool colours(const Frame &f, const std::vector<double> &dirs, const Found
     double rho[colour_rings], in_rho[colour_rings], fx[colour_rings], fy[colour_rings],
         v[3 * colour_rings];
     uint64_t wa[colour_rings], wb[colour_rings];
-    thread_local std::vector<double> bgr, mx;
+    thread_local std::vector<double> bgr, mx, srt;
     for (int i = 0; i < colour_rings; i++)
         rho[i] = c.r * colour_reach * std::sqrt((i + 0.5) / colour_rings);
     bgr.clear();
@@ -2295,7 +2295,7 @@ static bool colours(const Frame &f, const std::vector<double> &dirs, const Found
     mx.resize(n);
     for (size_t j = 0; j < n; j++)
         mx[j] = std::max(std::max(bgr[3 * j], bgr[3 * j + 1]), bgr[3 * j + 2]);
-    std::vector<double> srt(mx);
+    srt = mx;
     const size_t q = (size_t)std::floor(colour_quantile * (double)(n - 1));
     std::nth_element(srt.begin(), srt.begin() + (long)q, srt.end());
     const double vref = srt[q];

@@ -107,15 +107,16 @@ def circle_error(found, truth):
     return math.hypot(found[0] - truth[0], found[1] - truth[1]), abs(found[2] / truth[2] - 1) * 100
 
 
-def poseinfer_lines(poseinfer, paths, tmp_path, options=(), timeout_scale=1.0):
+def poseinfer_lines(poseinfer, paths, tmp_path, options=(), timeout_scale=1.0, rc=0):
     """poseinfer's result lines (conftest's fixture) for the frames, one run with the reference
-    camera file and `options`; it must answer every frame, in order."""
+    camera file and `options`: a line for every frame, in order, and exit status rc (0: every
+    frame answered; 1: some refused)."""
     cam = Path(tmp_path) / "camera.json"
     cam.write_text(json.dumps(CAMERA))
     proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam), *options]
                           + [str(path) for path in paths], capture_output=True, text=True,
                           timeout=120 * timeout_scale)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.returncode == rc, proc.stdout + proc.stderr
     lines = [json.loads(s) for s in proc.stdout.splitlines()]
     assert [line["file"] for line in lines] == [str(path) for path in paths], proc.stdout
     return lines
