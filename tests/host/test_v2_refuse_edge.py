@@ -30,16 +30,14 @@
   0.56): "two spheres in frame".
 
 The C runtime gives the same errors as Python."""
-import json
 import math
-import subprocess
 
 import cv2
 import numpy as np
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import CAMERA, MODEL, params, render_seeded
+from v2_raycast_cases import CAMERA, params, poseinfer_lines, render_seeded
 
 TWO_EDGE = [(("refuse", 47, "22.989_-25.135_27.644.png"), 139),
             (("two-edge", 4, "-3.162_-25.139_26.169.png"), 500),
@@ -140,13 +138,7 @@ def test_cut_message_only_for_a_lit_circle(frames, monkeypatch):
 
 
 def test_same_errors_in_c(frames, tmp_path, poseinfer, timeout_scale):
-    cam = tmp_path / "camera.json"
-    cam.write_text(json.dumps(CAMERA))
-    paths = [str(path) for path in frames["two"] + frames["cut"] + frames["disks"] + frames["weak"]
-             + frames["grown"] + frames["cut_peak"]]
-    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam)] + paths,
-                          capture_output=True, text=True, timeout=120 * timeout_scale)
-    lines = [json.loads(s) for s in proc.stdout.splitlines()]
-    assert [line["file"] for line in lines] == paths, proc.stdout + proc.stderr
-    for path, line in zip(paths, lines):
+    paths = (frames["two"] + frames["cut"] + frames["disks"] + frames["weak"] + frames["grown"]
+             + frames["cut_peak"])
+    for path, line in zip(paths, poseinfer_lines(poseinfer, paths, tmp_path, (), timeout_scale, rc=1)):
         assert line.get("error") == f"preprocess: {_error(path)}", line

@@ -13,14 +13,11 @@ the sphere's own fit a few rays below an inner circle's), was refused so and is 
 the limits. A `refuse` frame without a sphere (frame 16 of seed 413, clutter) whose best fit the tangent
 circles take to min_support on a clutter disk stays refused by the shading test. The C runtime gives
 the same circles and errors as Python."""
-import json
-import subprocess
-
 import cv2
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import (CAMERA, MODEL, assert_same_circles_in_c, assert_within_limits, params,
+from v2_raycast_cases import (CAMERA, assert_same_circles_in_c, assert_within_limits, params, poseinfer_lines,
                               render_seeded)
 
 CUT_A_LITTLE = [(("edge", 97, "29.959_-10.487_-24.61.png"), 406),
@@ -79,10 +76,5 @@ def test_no_sphere_stays_refused(frames, monkeypatch):
 def test_same_circles_and_error_in_c(frames, tmp_path, poseinfer, timeout_scale):
     assert_same_circles_in_c(poseinfer, [path for path, _ in frames[0] + frames[2] + frames[3]], tmp_path,
                              timeout_scale)
-    cam = tmp_path / "camera.json"
-    cam.write_text(json.dumps(CAMERA))
-    path = str(frames[1][0][0])
-    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam), path],
-                          capture_output=True, text=True, timeout=120 * timeout_scale)
-    line = json.loads(proc.stdout.splitlines()[0])
-    assert line["file"] == path and line.get("error") == "preprocess: no sphere found in frame", line
+    (line,) = poseinfer_lines(poseinfer, [frames[1][0][0]], tmp_path, (), timeout_scale, rc=1)
+    assert line.get("error") == "preprocess: no sphere found in frame", line

@@ -15,16 +15,14 @@ that must stay refused.
   that seed's, 0.62 of the first's, and the one supported at 0.44) are still refused.
 
 The C runtime gives the same circles and the same errors as Python."""
-import json
 import re
-import subprocess
 
 import cv2
 import numpy as np
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import (CAMERA, MODEL, REPO, assert_same_circles_in_c, circle_error, params,
+from v2_raycast_cases import (CAMERA, REPO, assert_same_circles_in_c, circle_error, params, poseinfer_lines,
                               render_frames, without_colours)
 
 FLAT_SECOND = [(111, ("rig", 32, "-21.721_26.051_-21.863.png")),
@@ -83,14 +81,8 @@ def test_weak_fit_outside_the_rim_moves_in(frames, monkeypatch):
 def test_same_circles_and_errors_in_c(frames, tmp_path, poseinfer, timeout_scale):
     answered = [frames[f][0] for f in ("rig", "rig-unseen", "edge")]
     assert_same_circles_in_c(poseinfer, answered, tmp_path, timeout_scale)
-    cam = tmp_path / "camera.json"
-    cam.write_text(json.dumps(CAMERA))
-    paths = [str(path) for path, _ in frames["two"]]
-    proc = subprocess.run([str(poseinfer), "--model", str(MODEL), "--camera-file", str(cam)] + paths,
-                          capture_output=True, text=True, timeout=120 * timeout_scale)
-    lines = [json.loads(s) for s in proc.stdout.splitlines()]
-    assert [line["file"] for line in lines] == paths, proc.stdout + proc.stderr
-    for path, line in zip(paths, lines):
+    paths = [path for path, _ in frames["two"]]
+    for path, line in zip(paths, poseinfer_lines(poseinfer, paths, tmp_path, (), timeout_scale, rc=1)):
         with pytest.raises(pp.NoSphere) as e:
             _found(path)
         assert line["error"] == f"preprocess: {e.value}", line
