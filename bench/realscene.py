@@ -55,7 +55,8 @@ def get_args_parser():
                     help="camera file for the frames and the runtime (default: the reference camera)")
     ap.add_argument("--families", nargs="+", default=list(families.FAMILIES),
                     choices=families.FAMILIES + families.EXTRA_FAMILIES,
-                    help="families to evaluate (default: all of FAMILIES; two-edge, rig-photo and rig-sensor only when named)")
+                    help="families to evaluate (default: all of FAMILIES; the extra ones, " + ", ".join(families.EXTRA_FAMILIES)
+                    + ", only when named)")
     ap.add_argument("--n", type=int, default=100, help="frames per family (default 100)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the frames (default 0)")
     ap.add_argument("--supersample", type=int, default=4, help="rays per pixel per side (default 4)")
@@ -284,7 +285,16 @@ def scene_tags(scene):
         bg = "near-black" if scene["background"]["a"][0] < 0.1 else "near-white"
     if bg == "photo":                      # rig-photo: one row per photograph
         bg = "photo " + scene["background"]["photo"]
-    return {"mount": mtag, "backdrop": bg, "refuse": scene.get("refuse")}
+    tags = {"mount": mtag, "backdrop": bg, "refuse": scene.get("refuse")}
+    motion = scene.get("motion")
+    if motion:                             # rig-motion: the sweep's length and the smear, binned
+        sweep = math.sqrt(sum(v * v for v in motion["sweep_deg"]))
+        tags["sweep"] = ("sweep < 1°" if sweep < 1 else "sweep 1-2°" if sweep < 2 else "sweep 2-3°" if sweep < 3
+                         else "sweep 3-5.2°")
+        line = motion["line_px"]
+        tags["smear"] = ("no smear" if line == 0 else "smear < 3 px" if line < 3 else "smear 3-6 px" if line < 6
+                         else "smear 6-10 px")
+    return tags
 
 
 def breakdown(rows_by_family):
@@ -293,10 +303,11 @@ def breakdown(rows_by_family):
     for fam, rows in rows_by_family.items():
         if rows and rows[0].get("expect") == "refuse":
             continue
-        for by in ("backdrop", "mount"):
+        for by in ("backdrop", "mount", "sweep", "smear"):
             groups = {}
             for r in rows:
-                groups.setdefault(r["tags"][by], []).append(r)
+                if by in r["tags"]:
+                    groups.setdefault(r["tags"][by], []).append(r)
             if len(groups) < 2:
                 continue
             for value in sorted(groups):

@@ -37,6 +37,13 @@
   OpenCV demosaicing (bilinear, VNG or EA), gamma, an unsharp mask (amount
   0-1, sigma 0.5-1.5 px) on 60 % of frames, JPEG. The truth circle is the
   green (reference) channel's outline.
+- `rig-motion` (drawn only when named): `rig` with motion during the
+  exposure: the sphere turning (each of its three angles sweeps up to
+  +-MOTION_SWEEP_DEG about the frame's pose, rendered as MOTION_STEPS
+  sub-exposures averaged: a stage moving while the shutter is open) and, on
+  half the frames, the whole image smeared along a line of up to
+  MOTION_LINE_PX at any angle (the camera or its stand shaking). The truth
+  pose is the middle of the sweep; the outline does not move.
 Each frame's scene depends only on (family, seed, index), so frames can be
 drawn in any order or in parallel and drawn again identically.
 """
@@ -49,9 +56,15 @@ from . import backgrounds, render, sensor
 FAMILIES = ("clean", "shifts", "rig", "rig-unseen", "edge", "refuse")
 # Families drawn only when named (not in an evaluation's default list); appended after FAMILIES so
 # that no family's seed stream, and so no frame drawn before, changes.
-EXTRA_FAMILIES = ("two-edge", "rig-photo", "rig-sensor")
+EXTRA_FAMILIES = ("two-edge", "rig-photo", "rig-sensor", "rig-motion")
 _FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES + EXTRA_FAMILIES)}
 MAX_HIDDEN_RIM = 0.15
+# rig-motion: each angle's sweep over the exposure is drawn in [-MOTION_SWEEP_DEG, MOTION_SWEEP_DEG]
+# (a stage at 30 deg/s behind a 1/30 s shutter turns the sphere 1 deg: the range reaches past
+# that, to find where accuracy goes); the line smear in [0, MOTION_LINE_PX] px.
+# render.MOTION_STEPS sub-exposures make up the sweep.
+MOTION_SWEEP_DEG = 3.0
+MOTION_LINE_PX = 10.0
 POSE_RANGE = 30.0
 
 
@@ -292,8 +305,20 @@ def _rig_sensor(rng, cam):
     return s
 
 
+def _rig_motion(rng, cam):
+    """`rig` with the sphere turning while the shutter is open and, on half the frames, a line
+    smear of the whole image (render.render reads the "motion" record)."""
+    s = _rig(rng, cam)
+    shake = rng.random() < 0.5
+    s["motion"] = {"sweep_deg": [float(v) for v in rng.uniform(-MOTION_SWEEP_DEG, MOTION_SWEEP_DEG, 3)],
+                   "line_px": float(rng.uniform(0.0, MOTION_LINE_PX)) if shake else 0.0,
+                   "line_deg": float(rng.uniform(0.0, 180.0))}
+    return s
+
+
 _DRAW = {"clean": _clean, "shifts": _shifts, "rig": _rig, "rig-unseen": _rig_unseen, "edge": _edge,
-         "refuse": _refuse, "two-edge": _two_edge, "rig-photo": _rig_photo, "rig-sensor": _rig_sensor}
+         "refuse": _refuse, "two-edge": _two_edge, "rig-photo": _rig_photo, "rig-sensor": _rig_sensor,
+         "rig-motion": _rig_motion}
 
 
 def draw_scene(family, seed, index, cam):

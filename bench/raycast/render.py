@@ -19,6 +19,9 @@ The `rig-sensor` family's scenes carry a "sensor" record: after the optics
 (exposure, vignetting, blur) their frames go through sensor.py's colour
 camera pipeline instead (lateral colour, Bayer mosaic, noise, white balance,
 demosaicing, gamma, sharpening, JPEG).
+The `rig-motion` family's scenes carry a "motion" record: the sphere's
+radiance is the mean of sub-exposures along a sweep of its pose
+(exposure_radiance), and a line smear follows the blur in the optics.
 """
 import math
 
@@ -30,6 +33,7 @@ from . import backgrounds, camera, mounts, sensor, shapes
 SPHERE, BACKDROP = 0, -1      # hit ids; mount parts are 1, 2, ...; other spheres OTHERS + j
 OTHERS = 1000
 CHUNK_RAYS = 1 << 15          # rays traced at once: about 1 MB per float64 array
+MOTION_STEPS = 8              # sub-exposures of a scene with motion (exposure_radiance)
 
 
 def euler_matrix(x_deg, y_deg, z_deg):
@@ -214,6 +218,39 @@ def radiance(scene, cam, tex, supersample=4):
     return img
 
 
+def exposure_radiance(scene, cam, tex, supersample=4):
+    """The radiance the sensor integrates over the exposure: radiance() itself, or for a scene with
+    a "motion" record the mean of MOTION_STEPS sub-exposures whose poses sweep evenly through
+    pose +- sweep_deg / 2 (the middle one's pose is the frame's: its truth)."""
+    motion = scene.get("motion")
+    if not motion:
+        return radiance(scene, cam, tex, supersample)
+    total = None
+    for k in range(MOTION_STEPS):
+        t = (k + 0.5) / MOTION_STEPS - 0.5
+        pose = [p + t * s for p, s in zip(scene["pose"], motion["sweep_deg"])]
+        img = radiance(dict(scene, pose=pose), cam, tex, supersample)
+        total = img if total is None else total + img
+    return total / np.float32(MOTION_STEPS)
+
+
+def _line_kernel(length, angle_deg):
+    """Motion smear: a segment of `length` px at `angle_deg` (image x towards y), 256 points along
+    it spread over their four nearest taps (bilinear), normalised."""
+    n = int(math.ceil(length / 2)) + 1
+    k = np.zeros((2 * n + 1, 2 * n + 1), np.float64)
+    a = math.radians(angle_deg)
+    for s in (np.arange(256) + 0.5) / 256 - 0.5:
+        x, y = n + s * length * math.cos(a), n + s * length * math.sin(a)
+        x0, y0 = int(math.floor(x)), int(math.floor(y))
+        fx, fy = x - x0, y - y0
+        k[y0, x0] += (1 - fx) * (1 - fy)
+        k[y0, x0 + 1] += fx * (1 - fy)
+        k[y0 + 1, x0] += (1 - fx) * fy
+        k[y0 + 1, x0 + 1] += fx * fy
+    return (k / k.sum()).astype(np.float32)
+
+
 def _disc_kernel(radius):
     """Defocus: a uniform disc of `radius` px, its edge anti-aliased by 8x8 sub-samples."""
     n = int(math.ceil(radius)) + 1
@@ -244,6 +281,10 @@ def optics(img, scene, cam):
             img = cv2.filter2D(img, -1, _disc_kernel(blur["px"]), borderType=cv2.BORDER_REFLECT)
         else:
             img = cv2.GaussianBlur(img, (0, 0), blur["px"], borderType=cv2.BORDER_REFLECT)
+    motion = scene.get("motion")
+    if motion and motion["line_px"] > 0:
+        img = cv2.filter2D(img, -1, _line_kernel(motion["line_px"], motion["line_deg"]),
+                           borderType=cv2.BORDER_REFLECT)
     return img
 
 
@@ -263,7 +304,7 @@ def camera_effects(img, scene, cam):
 def render(scene, cam, tex, supersample=4):
     """RGB uint8 frame [H, W, 3] of `scene` seen by `cam` (texture `tex` from load_texture); a scene
     with a "sensor" record goes through a colour camera's pipeline (sensor.py) after the optics."""
-    img = radiance(scene, cam, tex, supersample)
+    img = exposure_radiance(scene, cam, tex, supersample)
     if scene.get("sensor"):
         return sensor.pipeline(optics(img, scene, cam), scene, cam)
     return camera_effects(img, scene, cam)

@@ -36,6 +36,7 @@ STREAMS = {
     "two-edge": "6e7d45688c06e70a",         # since its second sphere keeps off the top and bottom
     "rig-photo": "7af6df4b1f5354a6",        # as added (a19d18c)
     "rig-sensor": "5f1dd348ebd1b360",       # as added (5b15cbd)
+    "rig-motion": "e6aa4d541bed4380",       # as added
 }
 
 
