@@ -235,19 +235,17 @@ def exposure_radiance(scene, cam, tex, supersample=4):
 
 
 def _line_kernel(length, angle_deg):
-    """Motion smear: a segment of `length` px at `angle_deg` (image x towards y), 256 points along
-    it spread over their four nearest taps (bilinear), normalised."""
+    """Motion smear: a segment of `length` px at `angle_deg` (image x towards y) seen by each tap
+    through a tent of one pixel each way (bilinear): the tap's weight is the sum over 256 points
+    evenly along the segment of (1 - |dx|)(1 - |dy|), where both are under 1; normalised."""
     n = int(math.ceil(length / 2)) + 1
-    k = np.zeros((2 * n + 1, 2 * n + 1), np.float64)
     a = math.radians(angle_deg)
-    for s in (np.arange(256) + 0.5) / 256 - 0.5:
-        x, y = n + s * length * math.cos(a), n + s * length * math.sin(a)
-        x0, y0 = int(math.floor(x)), int(math.floor(y))
-        fx, fy = x - x0, y - y0
-        k[y0, x0] += (1 - fx) * (1 - fy)
-        k[y0, x0 + 1] += fx * (1 - fy)
-        k[y0 + 1, x0] += (1 - fx) * fy
-        k[y0 + 1, x0 + 1] += fx * fy
+    s = ((np.arange(256) + 0.5) / 256 - 0.5) * length
+    px, py = s * math.cos(a), s * math.sin(a)                  # the points, about the middle tap
+    taps = np.arange(-n, n + 1, dtype=np.float64)
+    wx = np.clip(1.0 - np.abs(taps[:, None] - px[None, :]), 0.0, None)   # [tap x, point]
+    wy = np.clip(1.0 - np.abs(taps[:, None] - py[None, :]), 0.0, None)   # [tap y, point]
+    k = wy @ wx.T                                               # [tap y, tap x]
     return (k / k.sum()).astype(np.float32)
 
 
