@@ -310,7 +310,7 @@ def breakdown(rows_by_family):
                     groups.setdefault(r["tags"][by], []).append(r)
             if len(groups) < 2:
                 continue
-            for value in sorted(groups):
+            for value in sorted(groups, key=lambda v: v.replace("<", "0")):   # "< 1°" before "1-2°"
                 m = family_metrics(groups[value])
                 lines.append(f"| {fam} | {by} | {value} | {m['n']} | {m['answered_pct']:.0f} % | {m['flagged']} "
                              f"| {fmt(m, 'mae', 3)} "

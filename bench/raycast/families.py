@@ -38,9 +38,10 @@
   0-1, sigma 0.5-1.5 px) on 60 % of frames, JPEG. The truth circle is the
   green (reference) channel's outline.
 - `rig-motion` (drawn only when named): `rig` with motion during the
-  exposure: the sphere turning (each of its three angles sweeps up to
-  +-MOTION_SWEEP_DEG about the frame's pose, rendered as MOTION_STEPS
-  sub-exposures averaged: a stage moving while the shutter is open) and, on
+  exposure: the sphere turning (each of its three angles turns through up
+  to MOTION_SWEEP_DEG, +- half that about the frame's pose, rendered as
+  MOTION_STEPS sub-exposures averaged: a stage moving while the shutter is
+  open) and, on
   half the frames, the whole image smeared along a line of up to
   MOTION_LINE_PX at any angle (the camera or its stand shaking). The truth
   pose is the middle of the sweep; the outline does not move.
@@ -59,7 +60,8 @@ FAMILIES = ("clean", "shifts", "rig", "rig-unseen", "edge", "refuse")
 EXTRA_FAMILIES = ("two-edge", "rig-photo", "rig-sensor", "rig-motion")
 _FAMILY_ID = {name: i + 1 for i, name in enumerate(FAMILIES + EXTRA_FAMILIES)}
 MAX_HIDDEN_RIM = 0.15
-# rig-motion: each angle's sweep over the exposure is drawn in [-MOTION_SWEEP_DEG, MOTION_SWEEP_DEG]
+# rig-motion: each angle's sweep over the exposure (the whole turn, centred on the frame's pose) is
+# drawn in [-MOTION_SWEEP_DEG, MOTION_SWEEP_DEG]
 # (a stage at 30 deg/s behind a 1/30 s shutter turns the sphere 1 deg: the range reaches past
 # that, to find where accuracy goes); the line smear in [0, MOTION_LINE_PX] px.
 # render.MOTION_STEPS sub-exposures make up the sweep.

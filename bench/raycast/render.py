@@ -220,8 +220,9 @@ def radiance(scene, cam, tex, supersample=4):
 
 def exposure_radiance(scene, cam, tex, supersample=4):
     """The radiance the sensor integrates over the exposure: radiance() itself, or for a scene with
-    a "motion" record the mean of MOTION_STEPS sub-exposures whose poses sweep evenly through
-    pose +- sweep_deg / 2 (the middle one's pose is the frame's: its truth)."""
+    a "motion" record the mean of MOTION_STEPS sub-exposures whose poses lie evenly (at the middles
+    of MOTION_STEPS equal steps) across pose +- sweep_deg / 2: symmetric about the frame's pose,
+    its truth."""
     motion = scene.get("motion")
     if not motion:
         return radiance(scene, cam, tex, supersample)
