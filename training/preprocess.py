@@ -159,6 +159,16 @@ SECOND_IN_FRAME = 0.7
 # the algorithm, not a model parameter; crop2.cpp has the same (cut_shade).
 CUT_SHADE = 1.0
 
+# ... and only when it shows the printed texture's bands: `_texture_steps` (the median count of colour
+# steps per ray from 0.2 r to 0.8 r over its rays in the frame) at least CUT_TEXTURE, or too few rays
+# in the frame to tell. A lit clutter disk cut by the frame edge is smooth inside. Measured
+# (docs/bench/localise.md) on the 943 frames named "sphere cut by the frame edge" before this test
+# (seeds 475-502 of the four rig families, `two-edge` 500-502): the 930 spheres truly cut (`refuse`
+# frames of the kind `cut`) show 2-17 steps (p5 3, median 4); 9 of the 11 frames without a sphere
+# named so show 0 or 1. Only the message changes, never whether a frame is answered. A constant of
+# the algorithm, not a model parameter; crop2.cpp has the same (cut_texture).
+CUT_TEXTURE = 2.0
+
 # A circle of the sphere's size beside it, supported by at least SECOND_RETRY of the rays but
 # below min_support, is tried again as the sphere's weak fit is (_grown: _grow's larger and
 # smaller circles) before it is ruled out as a second sphere: the fine passes from a coarse peak
@@ -1444,6 +1454,13 @@ def _lit(img, dirs, c, p):
     return s is None or s >= CUT_SHADE
 
 
+def _textured(img, dirs, c, p):
+    """Whether circle c may be a sphere by its inside: its texture steps (_texture_steps) at least
+    CUT_TEXTURE, or too few of its rays in the frame to tell."""
+    t = _texture_steps(img, dirs, c, p)
+    return t is None or t >= CUT_TEXTURE
+
+
 def _cut_message(cut, p):
     return (f"sphere cut by the frame edge ({100 * cut:.0f} % of its rim outside the frame, "
             f"at most {100 * p['max_cut']:.0f} %)")
@@ -1458,8 +1475,9 @@ def _sized(r, rmin, rmax):
 def _no_sphere_message(img, dirs, fits, p, rmin, rmax):
     """The error when no circle is the sphere: the cut sphere's, of the best supported fit (first
     on ties) of a radius in range with more than max_cut of its rim outside the frame, at least
-    half its rays in the frame, min_support of them supporting it and its inside no darker than
-    its edge (_limb_shading known and at least CUT_SHADE); without one, no sphere found."""
+    half its rays in the frame, min_support of them supporting it, its inside no darker than its
+    edge (_limb_shading known and at least CUT_SHADE) and textured (_textured); without one, no
+    sphere found."""
     h, w = img.shape[:2]
     for i in sorted(range(len(fits)), key=lambda i: (-fits[i][3], i)):
         c = fits[i]
@@ -1472,7 +1490,7 @@ def _no_sphere_message(img, dirs, fits, p, rmin, rmax):
         if s is None or not s >= p["min_support"]:
             continue
         sh = _limb_shading(img, dirs, c[0], c[1], c[2], p)
-        if sh is not None and sh >= CUT_SHADE:
+        if sh is not None and sh >= CUT_SHADE and _textured(img, dirs, c, p):
             return _cut_message(cut, p)
     return "no sphere found in frame"
 
@@ -1635,9 +1653,10 @@ def _find_sphere_v2(frame, p, camera=None):
     a = found[order[0]]
     cut = rim_outside(a[0], a[1], a[2], h, w)
     if cut > p["max_cut"]:
-        # a circle darker inside than at its edge (a disk of the clutter) is no cut sphere: the
-        # frame is then told as one without a sphere is (a lit cut sphere below it, or none)
-        raise NoSphere(_cut_message(cut, p) if _lit(frame, dirs, a, p)
+        # a circle darker inside than at its edge, or smooth inside (a disk of the clutter), is no
+        # cut sphere: the frame is then told as one without a sphere is (a lit, textured cut sphere
+        # below it, or none)
+        raise NoSphere(_cut_message(cut, p) if _lit(frame, dirs, a, p) and _textured(frame, dirs, a, p)
                        else _no_sphere_message(frame, dirs, fits, p, rmin, rmax))
     # the weaker coarse peaks' circles cut by the frame edge judged with the fits (WEAK_PEAK)
     cut_fits = _cut_peak_fits(frame, dirs, weak_peaks, s, a, p)

@@ -2158,8 +2158,12 @@ double rim_outside(double cx, double cy, double r, int h, int w)
 constexpr double second_in_frame = 0.7;
 
 // The sphere's circle cut by the frame edge is named as one only when its
-// inside is no darker than its edge (preprocess.py CUT_SHADE: the same).
+// inside is no darker than its edge (preprocess.py CUT_SHADE: the same)
+// and it shows the texture's bands: texture_steps at least cut_texture, or
+// too few rays in the frame to tell (preprocess.py CUT_TEXTURE: the same
+// value, and its measured reason).
 constexpr double cut_shade = 1.0;
+constexpr double cut_texture = 2.0;
 
 // A circle of the sphere's size beside it, supported by at least this share
 // of the rays but below min_support, is tried again as the sphere's weak fit
@@ -2368,6 +2372,15 @@ bool texture_steps(const Frame &f, const std::vector<double> &dirs, const Found 
     return true;
 }
 
+// Whether circle c may be a sphere by its inside: its texture steps at least
+// cut_texture, or too few of its rays in the frame to tell (preprocess.py
+// _textured).
+bool textured(const Frame &f, const std::vector<double> &dirs, const Found &c, const pp_params *p)
+{
+    double t;
+    return !texture_steps(f, dirs, c, p, &t) || t >= cut_texture;
+}
+
 // Whether circle b, below min_support, is a second sphere beside sphere a by
 // its likeness to it: apart, lit as a is, textured and coloured as a is, and its beside
 // support at least second_weak (computed last: it is costly; preprocess.py
@@ -2494,6 +2507,7 @@ void no_sphere(const Frame &f, const std::vector<double> &dirs, const std::vecto
         if (!in_frame_support(f, dirs, c, c.support, p, 0.5, &s) || !(s >= p->min_support))
             continue;
         if (!limb_shading(f, dirs, c.cx, c.cy, c.r, p, &sh) || !(sh >= cut_shade)) continue;
+        if (!textured(f, dirs, c, p)) continue;
         best = (long)i;
         best_cut = cut;
     }
@@ -2698,9 +2712,10 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     const Found a = all[fits[(size_t)ia]];
     const double cut = rim_outside(a.cx, a.cy, a.r, h, w);
     if (cut > p->max_cut) {
-        // a circle darker inside than at its edge (a disk of the clutter) is no cut sphere:
-        // the frame is then told as one without a sphere is (a lit cut sphere below it, or none)
-        if (lit(f, dirs, a, p))
+        // a circle darker inside than at its edge, or smooth inside (a disk of the clutter), is
+        // no cut sphere: the frame is then told as one without a sphere is (a lit, textured cut
+        // sphere below it, or none)
+        if (lit(f, dirs, a, p) && textured(f, dirs, a, p))
             cut_message(cut, p, err, errlen);
         else
             no_sphere(f, dirs, all, p, rmin, rmax, err, errlen);

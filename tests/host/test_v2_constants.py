@@ -48,7 +48,7 @@ def test_every_constant_has_its_twin():
 def test_the_known_constants_are_read():
     """The reading itself: the constants this test was written with are among those found (a
     changed pattern that finds nothing on either side fails here, not silently above)."""
-    known = {"grow_rounds", "limb_share", "limb_min", "second_in_frame", "cut_shade", "second_retry",
+    known = {"grow_rounds", "limb_share", "limb_min", "second_in_frame", "cut_shade", "cut_texture", "second_retry",
              "wide_out", "wide_below", "orient_slopes", "stripe_share", "stripe_drop",
              "second_weak", "weak_share", "texture_tol", "rim_near", "weak_peak", "colour_rings",
              "colour_sat", "colour_dark", "colour_tol"}

@@ -10,7 +10,9 @@
   frame".
 - A dark disk cut by the frame edge, darker inside than at its edge, was named a "sphere cut by
   the frame edge" (a clutter disk that rose above the sphere, as on a training-renderer frame);
-  now "no sphere found in frame", while a lit disk (brighter inside) keeps the cut message.
+  now "no sphere found in frame", while a lit disk (brighter inside) keeps the cut message. A lit
+  disk smooth inside (a lamp's disk, a clutter disk on `refuse` frames without a sphere) is no
+  cut sphere either: only one with the texture's bands keeps it (CUT_TEXTURE).
 - `refuse` seed 0 frame 15, the sphere 23 % outside the frame and its support below
   min_support, was refused as "no sphere found in frame"; its in-frame rays support it and its
   inside is lit: "sphere cut by the frame edge".
@@ -49,14 +51,17 @@ GROWN_SECOND = [(("refuse", 67, "6.006_-25.991_-10.708.png"), 460)]
 CUT_PEAK = [(("refuse", 77, "20.382_4.776_-1.598.png"), 462)]
 
 
-def _disk(lit, share=0.3, r=132.0, cy=256.0):
+def _disk(lit, share=0.3, r=132.0, cy=256.0, checker=False):
     """A 640 x 512 frame with one disk, `share` of its rim beyond the left edge: a dark flat disk
     on a bright backdrop (a clutter disk: darker inside than at its blurred edge), or a lit one
-    (brightest in the middle) on a dark backdrop; blurred, with noise."""
+    (brightest in the middle) on a dark backdrop, smooth or with a checker of 14 px cells at half
+    the level (a printed texture's bands); blurred, with noise."""
     cx = r * math.cos(math.pi * share) - 0.5
     yy, xx = np.mgrid[0:512, 0:640].astype(np.float64)
     d = np.hypot(xx - cx, yy - cy) / r
     inside = np.where(lit, 80.0 + 120.0 * np.sqrt(np.clip(1.0 - d * d, 0.0, 1.0)), 30.0)
+    if checker:
+        inside = inside * np.where((np.floor(xx / 14) + np.floor(yy / 14)) % 2 == 0, 1.0, 0.5)
     img = cv2.GaussianBlur(np.where(d < 1.0, inside, 30.0 if lit else 200.0), (0, 0), 1.5)
     img = img + np.random.default_rng(0).normal(0.0, 2.0, img.shape)
     return np.repeat(np.clip(np.round(img), 0, 255)[:, :, None], 3, axis=2).astype(np.uint8)
@@ -71,9 +76,9 @@ def frames(tmp_path_factory):
     grown = [path for path, _ in render_seeded(folder, GROWN_SECOND)]
     cut_peak = [path for path, _ in render_seeded(folder, CUT_PEAK)]
     disks = []
-    for lit in (False, True):
-        path = folder / f"disk_{'lit' if lit else 'dark'}.png"
-        cv2.imwrite(str(path), _disk(lit))
+    for name, lit, checker in (("dark", False, False), ("lit", True, False), ("lit_checker", True, True)):
+        path = folder / f"disk_{name}.png"
+        cv2.imwrite(str(path), _disk(lit, checker=checker))
         disks.append(path)
     return {"two": two, "cut": cut, "disks": disks, "weak": weak, "grown": grown,
             "cut_peak": cut_peak}
@@ -126,15 +131,25 @@ def test_weak_peak_cut_by_the_edge_is_judged(frames, monkeypatch):
     pp.find_sphere(cv2.imread(str(path), cv2.IMREAD_COLOR), params(), CAMERA)
 
 
-def test_cut_message_only_for_a_lit_circle(frames, monkeypatch):
-    dark, lit = frames["disks"]
+def test_cut_message_only_for_a_lit_textured_circle(frames, monkeypatch):
+    dark, smooth, textured = frames["disks"]
     assert _error(dark) == "no sphere found in frame"
-    assert _error(lit) == "sphere cut by the frame edge (30 % of its rim outside the frame, at most 15 %)"
+    assert _error(smooth) == "no sphere found in frame"
+    assert _error(textured) == "sphere cut by the frame edge (30 % of its rim outside the frame, at most 15 %)"
+    # what tells them apart: the smooth disk's texture steps (_disk's circle)
+    disk = (132.0 * math.cos(math.pi * 0.3) - 0.5, 256.0, 132.0, 0.0)
+    steps = [pp._texture_steps(cv2.imread(str(path), cv2.IMREAD_COLOR), pp._ray_dirs(128), disk, params())
+             for path in (smooth, textured)]
+    assert steps[0] < pp.CUT_TEXTURE <= steps[1], steps
     # a cut sphere found below min_support is named by its rays in the frame
     assert _error(frames["cut"][0]).startswith("sphere cut by the frame edge"), frames["cut"][0].name
-    # with any shading taken for a sphere's the dark disk is a cut sphere (what this guards)
+    # with any inside taken for a sphere's the smooth lit disk is a cut sphere, and with any
+    # shading too the dark disk (what this guards)
+    monkeypatch.setattr(pp, "CUT_TEXTURE", -math.inf)
+    assert _error(smooth) == "sphere cut by the frame edge (30 % of its rim outside the frame, at most 15 %)"
     monkeypatch.setattr(pp, "CUT_SHADE", -math.inf)
     assert _error(dark).startswith("sphere cut by the frame edge")
+
 
 
 def test_same_errors_in_c(frames, tmp_path, poseinfer, timeout_scale):
