@@ -289,11 +289,12 @@ def scene_tags(scene):
     motion = scene.get("motion")
     if motion:                             # rig-motion: the sweep's length and the smear, binned
         sweep = math.sqrt(sum(v * v for v in motion["sweep_deg"]))
+        longest = math.sqrt(3) * families.MOTION_SWEEP_DEG
         tags["sweep"] = ("sweep < 1°" if sweep < 1 else "sweep 1-2°" if sweep < 2 else "sweep 2-3°" if sweep < 3
-                         else "sweep 3-5.2°")
+                         else f"sweep 3-{longest:.1f}°")
         line = motion["line_px"]
         tags["smear"] = ("no smear" if line == 0 else "smear < 3 px" if line < 3 else "smear 3-6 px" if line < 6
-                         else "smear 6-10 px")
+                         else f"smear 6-{families.MOTION_LINE_PX:.0f} px")
     return tags
 
 

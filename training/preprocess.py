@@ -163,10 +163,11 @@ CUT_SHADE = 1.0
 # steps per ray from 0.2 r to 0.8 r over its rays in the frame) at least CUT_TEXTURE, or too few rays
 # in the frame to tell. A lit clutter disk cut by the frame edge is smooth inside. Measured
 # (docs/bench/localise.md) on the 943 frames named "sphere cut by the frame edge" before this test
-# (seeds 475-502 of the four rig families, `two-edge` 500-502): the 930 spheres truly cut (`refuse`
-# frames of the kind `cut`) show 2-17 steps (p5 3, median 4); 9 of the 11 frames without a sphere
-# named so show 0 or 1. Only the message changes, never whether a frame is answered. A constant of
-# the algorithm, not a model parameter; crop2.cpp has the same (cut_texture).
+# (seeds 475-502 of the four rig families, `refuse` alone for 479-482; `two-edge` 500-502): the 930
+# spheres truly cut (`refuse` frames of the kind `cut`) show 2-17 steps (p5 3, median 4); 9 of the
+# 11 frames without a sphere named so show 0 or 1 (busy clutter has steps too: on fresh seeds
+# 503-510 it mends 2 of 5). Only the message changes, never whether a frame is answered. A constant
+# of the algorithm, not a model parameter; crop2.cpp has the same (cut_texture).
 CUT_TEXTURE = 2.0
 
 # A circle of the sphere's size beside it, supported by at least SECOND_RETRY of the rays but
@@ -207,8 +208,9 @@ SECOND_RETRY = 0.25
 # was 0.33 until a fresh `refuse` frame (seed 498, -3.589_28.381_-19.451: two spheres on clutter,
 # the second 2 % outside the frame) reached 0.328 of support and of beside support, lit, textured
 # and coloured as the sphere is, and got a confident pose of the other; at 0.30 it is refused, and
-# no other of the 9 900 frames at hand (seeds 475-498 of the four rig families, `rig-photo` and
-# `rig-sensor` 604-607, `rig-photo` 505, `two-edge` 500-505) changes (docs/bench/localise.md).
+# no other of the 9 900 frames at hand (seeds 475-498 of the four rig families, `refuse` alone for
+# 479-482; `rig-photo` and `rig-sensor` 604-607, `rig-photo` 505, `two-edge` 500-505) changes
+# (docs/bench/localise.md); fresh seeds 499-510 since hold it.
 # Constants of the algorithm, not model parameters; crop2.cpp has the same (second_weak,
 # weak_share, texture_tol).
 SECOND_WEAK = 0.30

@@ -301,8 +301,10 @@ def camera_effects(img, scene, cam):
 
 
 def render(scene, cam, tex, supersample=4):
-    """RGB uint8 frame [H, W, 3] of `scene` seen by `cam` (texture `tex` from load_texture); a scene
-    with a "sensor" record goes through a colour camera's pipeline (sensor.py) after the optics."""
+    """RGB uint8 frame [H, W, 3] of `scene` seen by `cam` (texture `tex` from load_texture): the
+    radiance over the exposure (exposure_radiance: a "motion" record's sweep), then the camera's
+    effects; a scene with a "sensor" record goes through a colour camera's pipeline (sensor.py)
+    after the optics."""
     img = exposure_radiance(scene, cam, tex, supersample)
     if scene.get("sensor"):
         return sensor.pipeline(optics(img, scene, cam), scene, cam)

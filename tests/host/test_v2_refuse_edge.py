@@ -51,12 +51,17 @@ GROWN_SECOND = [(("refuse", 67, "6.006_-25.991_-10.708.png"), 460)]
 CUT_PEAK = [(("refuse", 77, "20.382_4.776_-1.598.png"), 462)]
 
 
-def _disk(lit, share=0.3, r=132.0, cy=256.0, checker=False):
-    """A 640 x 512 frame with one disk, `share` of its rim beyond the left edge: a dark flat disk
-    on a bright backdrop (a clutter disk: darker inside than at its blurred edge), or a lit one
-    (brightest in the middle) on a dark backdrop, smooth or with a checker of 14 px cells at half
-    the level (a printed texture's bands); blurred, with noise."""
-    cx = r * math.cos(math.pi * share) - 0.5
+def _disk_circle(share=0.3, r=132.0, cy=256.0):
+    """_disk's circle (cx, cy, r): `share` of its rim beyond the left edge."""
+    return r * math.cos(math.pi * share) - 0.5, cy, r
+
+
+def _disk(lit, checker=False):
+    """A 640 x 512 frame with one disk (_disk_circle): a dark flat disk on a bright backdrop (a
+    clutter disk: darker inside than at its blurred edge), or a lit one (brightest in the middle)
+    on a dark backdrop, smooth or with a checker of 14 px cells at half the level (a printed
+    texture's bands); blurred, with noise."""
+    cx, cy, r = _disk_circle()
     yy, xx = np.mgrid[0:512, 0:640].astype(np.float64)
     d = np.hypot(xx - cx, yy - cy) / r
     inside = np.where(lit, 80.0 + 120.0 * np.sqrt(np.clip(1.0 - d * d, 0.0, 1.0)), 30.0)
@@ -136,10 +141,10 @@ def test_cut_message_only_for_a_lit_textured_circle(frames, monkeypatch):
     assert _error(dark) == "no sphere found in frame"
     assert _error(smooth) == "no sphere found in frame"
     assert _error(textured) == "sphere cut by the frame edge (30 % of its rim outside the frame, at most 15 %)"
-    # what tells them apart: the smooth disk's texture steps (_disk's circle)
-    disk = (132.0 * math.cos(math.pi * 0.3) - 0.5, 256.0, 132.0, 0.0)
-    steps = [pp._texture_steps(cv2.imread(str(path), cv2.IMREAD_COLOR), pp._ray_dirs(128), disk, params())
-             for path in (smooth, textured)]
+    # what tells them apart: the texture steps inside the disk's circle
+    p = params()
+    steps = [pp._texture_steps(cv2.imread(str(path), cv2.IMREAD_COLOR), pp._ray_dirs(p["rays"]),
+                               (*_disk_circle(), 0.0), p) for path in (smooth, textured)]
     assert steps[0] < pp.CUT_TEXTURE <= steps[1], steps
     # a cut sphere found below min_support is named by its rays in the frame
     assert _error(frames["cut"][0]).startswith("sphere cut by the frame edge"), frames["cut"][0].name
@@ -149,7 +154,6 @@ def test_cut_message_only_for_a_lit_textured_circle(frames, monkeypatch):
     assert _error(smooth) == "sphere cut by the frame edge (30 % of its rim outside the frame, at most 15 %)"
     monkeypatch.setattr(pp, "CUT_SHADE", -math.inf)
     assert _error(dark).startswith("sphere cut by the frame edge")
-
 
 
 def test_same_errors_in_c(frames, tmp_path, poseinfer, timeout_scale):
