@@ -1608,7 +1608,7 @@ def _check_size(frame, camera):
         raise ValueError(f"frame is {w}x{h}, the camera file's calibration is for {cw}x{ch}")
 
 
-def _find_sphere_v2(frame, p, camera=None):
+def _find_sphere_v2(frame, p, camera=None, fits_out=None):
     h, w = frame.shape[:2]
     if camera is not None:
         _check_size(frame, camera)
@@ -1645,6 +1645,8 @@ def _find_sphere_v2(frame, p, camera=None):
         fits[ib] = _rescue(frame, dirs, fits[ib], p)
         # and when it is still below, every other fit tried the same way (_retry_rest)
         _retry_rest(frame, dirs, fits, ib, p, rmin, rmax)
+    if fits_out is not None:
+        fits_out.extend(fits)
     found = [f for f in fits if f[3] >= p["min_support"] and _sized(f[2], rmin, rmax)]
     if not found:
         raise NoSphere(_no_sphere_message(frame, dirs, fits, p, rmin, rmax))
@@ -1726,16 +1728,27 @@ def _final_circle(img, dirs, a, p):
 
 # ---- the public steps -----------------------------------------------------------------------
 
-def find_sphere(frame, p=None, camera=None):
+def find_sphere(frame, p=None, camera=None, fits=None):
     """(cx, cy, r, bg) of the sphere in a BGR uint8 frame (OpenCV pixel coordinates: pixel
     centres at integers); bg is v1's background colour, v2's fill colour. NoSphere says why
-    there is none. v2 expects an undistorted frame (see undistort, crop_frame)."""
+    there is none. v2 expects an undistorted frame (see undistort, crop_frame). A list `fits`
+    (v2) gets the circles the sphere was chosen from, (cx, cy, r, support) each, also when there
+    is none: what scripts/sphere_check.py shows a user of a refused frame."""
     p = p or DEFAULTS
     frame = _as_bgr(frame)
     if p["name"] == NAME_V1:
         return _find_sphere_v1(frame, p)
-    cx, cy, r = _find_sphere_v2(frame, p, camera)
+    cx, cy, r = _find_sphere_v2(frame, p, camera, fits)
     return cx, cy, r, np.asarray(p["fill"], np.float64)
+
+
+def rim_support(frame, circle, p=None):
+    """Which rays from the circle's centre find its rim, as the support counts them (_support): a
+    bool per ray, ray k pointing at the angle 2 pi k / rays (x right, y down). frame: undistorted
+    BGR uint8; circle: (cx, cy, r, ...), OpenCV pixel coordinates."""
+    p = p or DEFAULTS
+    cx, cy, r = (float(v) for v in circle[:3])
+    return _support_rays(_as_bgr(frame), _ray_dirs(p["rays"]), cx, cy, r, p)
 
 
 def rim_from(frame, circle, p=None):
