@@ -9,9 +9,12 @@
 #include <climits>
 #include <cmath>
 #include <cstdio>
+#include <cerrno>
 #include <cstring>
 #include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -540,18 +543,34 @@ extern "C" int shim_preprocess_seen(const pi_frame *f, const pp_params *p, float
     return -1;
 }
 
+// Written under a temporary name beside path (its extension kept: imwrite picks
+// the format by it), then renamed: a run killed mid-write leaves no half image
+// under the frame's name.
 extern "C" int shim_save(const pi_frame *f, const char *path, char *err)
 {
+    std::string tmp;
     try {
         size_t stride = f->stride ? f->stride : (size_t)f->width * f->channels;
         cv::Mat m(f->height, f->width, CV_8UC(f->channels), const_cast<uint8_t *>(f->data), stride);
-        if (!cv::imwrite(path, m)) {
-            seterr(err, "imwrite", "cannot write (unknown extension or unwritable path)");
+        const char *dot = strrchr(path, '.');
+        const char *slash = strrchr(path, '/');
+        std::string ext = dot && (!slash || dot > slash) ? dot : "";
+        tmp = std::string(path) + ".tmp" + std::to_string((long)getpid()) + ext;
+        if (!cv::imwrite(tmp, m)) {
+            unlink(tmp.c_str());
+            pi_seterr(err, "%s: cannot write (unknown extension or unwritable path)", path);
+            return -1;
+        }
+        if (rename(tmp.c_str(), path) != 0) {
+            int e = errno;
+            unlink(tmp.c_str());
+            pi_seterr(err, "%s: cannot write: %s", path, strerror(e));
             return -1;
         }
         return 0;
     }
     SHIM_CATCH("imwrite")
+    if (!tmp.empty()) unlink(tmp.c_str());
     return -1;
 }
 

@@ -83,6 +83,7 @@ void config_free(pi_config *c)
     free(c->camera);
     free(c->camera_file);
     free(c->dump_tensor);
+    free(c->save_frames);
     free(c->socket_group);
     free(c->token_file);
     config_clear_allow_dirs(c);
@@ -154,6 +155,7 @@ static const struct key_def {
     {"timings", K_BOOL, offsetof(pi_config, timings), 0, 0},
     {"refine", K_BOOL, offsetof(pi_config, refine), 0, 0},
     {"count", K_LONG, offsetof(pi_config, count), 0, LONG_MAX},
+    {"save_frames", K_STR, offsetof(pi_config, save_frames), 0, 0},
     {"interval_ms", K_INT, offsetof(pi_config, interval_ms), 0, 3600000},
     {"threads", K_INT, offsetof(pi_config, threads), 1, 256},
     {"warmup", K_INT, offsetof(pi_config, warmup), 0, 100},

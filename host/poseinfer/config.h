@@ -12,6 +12,7 @@ typedef struct pi_config {
     char *dump_tensor; /* (flag only) write the input tensor of one image */
     int continuous;    /* continuous = yes|no: capture mode */
     long count;        /* count = N: frames in continuous mode (0 = until stopped) */
+    char *save_frames; /* save_frames = DIR: continuous mode writes each frame there */
     int interval_ms;   /* interval_ms = N: pause between continuous frames */
     int threads;       /* threads = N: ONNX Runtime intra-op threads */
     int warmup;        /* warmup = N: warm-up runs at model load */

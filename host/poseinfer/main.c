@@ -48,6 +48,8 @@ static void usage(FILE *f)
         "      --continuous       capture and print one JSON line per frame [continuous]\n"
         "      --count N          stop after N frames in --continuous (default 0: run on) [count]\n"
         "      --interval-ms N    pause between continuous frames (default 0) [interval_ms]\n"
+        "      --save-frames DIR  in --continuous, write each frame as DIR/frame_NNNNNN.png (the\n"
+        "                         line's \"frame\" number; DIR is made if missing) [save_frames]\n"
         "      --threads N        ONNX Runtime intra-op threads (default 1) [threads]\n"
         "      --warmup N         warm-up runs at model load (default 1) [warmup]\n"
         "      --max-pixels N     refuse larger images (default 67108864) [max_pixels]\n"
@@ -85,6 +87,7 @@ static const struct option long_opts[] = {
     {"serve", required_argument, 0, 's'},
     {"camera", required_argument, 0, 1},
     {"camera-file", required_argument, 0, 16},
+    {"save-frames", required_argument, 0, 17},
     {"continuous", no_argument, 0, 2},
     {"count", required_argument, 0, 3},
     {"interval-ms", required_argument, 0, 4},
@@ -112,6 +115,21 @@ static int is_image_name(const char *name)
     if (!dot || name[0] == '.') return 0;
     for (int i = 0; ext[i]; i++)
         if (strcasecmp(dot, ext[i]) == 0) return 1;
+    return 0;
+}
+
+/* DIR made if missing (one level, as mkdir), or -1 with err "DIR: reason". */
+static int make_dir(const char *dir, char *err)
+{
+    struct stat st;
+    if (mkdir(dir, 0777) < 0 && errno != EEXIST) {
+        pi_seterr(err, "%s: cannot make the folder: %s", dir, strerror(errno));
+        return -1;
+    }
+    if (stat(dir, &st) < 0 || !S_ISDIR(st.st_mode)) {
+        pi_seterr(err, "%s: not a folder", dir);
+        return -1;
+    }
     return 0;
 }
 
@@ -305,6 +323,7 @@ int main(int argc, char **argv)
         case 14: key = "max_clients"; break;
         case 15: key = "idle_timeout_ms"; break;
         case 16: key = "camera_file"; break;
+        case 17: key = "save_frames"; break;
         case 40:
             key = "refine";
             val = "no";
@@ -331,6 +350,16 @@ int main(int argc, char **argv)
     }
     if (cfg.continuous && cfg.serve) {
         fprintf(stderr, "poseinfer: --continuous and --serve exclude each other\n");
+        goto out;
+    }
+    if (cfg.save_frames && !cfg.continuous) {
+        fprintf(stderr,
+                "poseinfer: --save-frames is for --continuous (poserig --save-frames keeps a "
+                "run's frames)\n");
+        goto out;
+    }
+    if (cfg.save_frames && make_dir(cfg.save_frames, err) < 0) {
+        fprintf(stderr, "poseinfer: --save-frames %s\n", err);
         goto out;
     }
     if (!cfg.serve && !cfg.continuous && optind >= argc) {

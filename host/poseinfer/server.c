@@ -11,6 +11,7 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <grp.h>
+#include <limits.h>
 #include <malloc.h>
 #include <math.h>
 #include <netinet/in.h>
@@ -1028,9 +1029,27 @@ int server_run(app *a, int lfd, const char *spec, char *err)
     return rc;
 }
 
+/* --save-frames: grab frame n, write it as DIR/frame_NNNNNN.png (saved: that
+ * path; empty, and the reason logged, when it cannot be written: the pose is
+ * still measured), and infer on it. 1 when a pose came back, 0 with e. */
+static int grab_and_save(app *a, unsigned long n, char *saved, size_t len, pi_result *r, char *e)
+{
+    pi_frame f;
+    char se[PI_ERR_LEN];
+    memset(r, 0, sizeof *r);
+    if (pi_camera_grab(a->cam, &f, e) < 0) return 0;
+    snprintf(saved, len, "%s/frame_%06lu.png", a->cfg->save_frames, n);
+    if (pi_frame_save(&f, saved, se) < 0) {
+        log_msg("frame %lu: not saved: %s", n, se);
+        saved[0] = '\0';
+    }
+    return pi_infer_frame(a->ctx, &f, r, e) == 0;
+}
+
 int continuous_run(app *a, char *err)
 {
     sbuf s;
+    char saved[PATH_MAX + 32];
     unsigned long n = 0;
     sb_init(&s);
     while (!got_stop && (a->cfg->count == 0 || n < (unsigned long)a->cfg->count)) {
@@ -1045,11 +1064,20 @@ int continuous_run(app *a, char *err)
             else
                 log_msg("SIGHUP: reloaded %s", a->cfg->model);
         }
-        ok = pi_infer_camera(a->ctx, a->cam, &r, e) == 0;
+        saved[0] = '\0';
+        if (a->cfg->save_frames)
+            ok = grab_and_save(a, n, saved, sizeof saved, &r, e);
+        else
+            ok = pi_infer_camera(a->ctx, a->cam, &r, e) == 0;
         if (got_stop) break;
         clock_gettime(CLOCK_REALTIME, &ts);
         sb_reset(&s);
         sb_printf(&s, "{\"frame\": %lu, \"time\": %.3f, ", n, ts.tv_sec + ts.tv_nsec / 1e9);
+        if (saved[0]) {
+            sb_puts(&s, "\"saved\": ");
+            sb_json_str(&s, saved);
+            sb_puts(&s, ", ");
+        }
         if (ok) {
             /* splice the result object's members after ours */
             sbuf t;

@@ -11,6 +11,7 @@ import subprocess
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from pihelpers import dots_texture, sphere_frame
@@ -228,6 +229,35 @@ def test_continuous_stops_on_sigterm(poseinfer, models, frame_server, timeout_sc
         if p.poll() is None:
             p.kill()
             p.wait()
+
+
+def test_continuous_saves_frames(run, models, frame_server, tmp_path):
+    frames = [sphere_frame(seed=24), sphere_frame(seed=25, cx=250)]
+    srv = frame_server(frames)
+    out = tmp_path / "grabbed"  # made by poseinfer
+    r = run("--model", models["good"], "--camera", f"unix:{srv.path}", "--continuous", "--count", "3",
+            "--save-frames", out)
+    assert r.rc == 0, r.stderr
+    names = [f"frame_{n:06d}.png" for n in range(3)]
+    assert [l["saved"] for l in r.lines] == [str(out / n) for n in names]
+    assert sorted(f.name for f in out.iterdir()) == names  # no temporary file left
+    for n, name in enumerate(names):  # the server sends its frames in turn, losslessly
+        assert np.array_equal(cv2.imread(str(out / name)), frames[n % 2]), name
+    # a frame that cannot be written is still measured
+    (tmp_path / "blocked").mkdir()
+    (tmp_path / "blocked" / "frame_000000.png").mkdir()
+    r = run("--model", models["good"], "--camera", f"unix:{srv.path}", "--continuous", "--count", "1",
+            "--save-frames", tmp_path / "blocked")
+    assert r.rc == 0 and "saved" not in r.lines[0] and "x" in r.lines[0], r.stdout
+    assert "frame 0: not saved" in r.stderr and "frame_000000.png" in r.stderr
+    assert sorted(f.name for f in (tmp_path / "blocked").iterdir()) == ["frame_000000.png"]
+    # usage
+    r = run("--model", models["good"], "--save-frames", out, "x.png")
+    assert r.rc == 2 and "--save-frames is for --continuous" in r.stderr
+    (tmp_path / "file").write_text("")
+    r = run("--model", models["good"], "--camera", f"unix:{srv.path}", "--continuous", "--save-frames",
+            tmp_path / "file")
+    assert r.rc == 2 and "not a folder" in r.stderr
 
 
 def test_camera_that_is_not_there(run, models, tmp_path):
