@@ -11,6 +11,13 @@ POSES=${POSES:-40}
 echo "demo: $POSES poses on the simulated stage; results go to $OUT"
 scripts/simrig.sh "$OUT" --random "$POSES" --seed "${SEED:-1}" --save-frames
 .venv/bin/python scripts/rig_plots.py "$OUT"
+# what the sphere finder saw in the first frames (docs/rig.md, "Checking the camera's view")
+CAMERA_FILE=${CAMERA_FILE-sim/scenes/rig_camera.json}  # simrig.sh's
+cam_opts=()
+[ -z "$CAMERA_FILE" ] || cam_opts+=(--camera-file "$CAMERA_FILE")
+mapfile -t FIRST < <(find "$OUT/frames" -name '*.png' | sort | head -n 3)
+.venv/bin/python scripts/sphere_check.py "${cam_opts[@]}" --out "$OUT/check" "${FIRST[@]}" ||
+  echo "demo: sphere_check refused a frame (above)"
 echo
 echo "demo: done. Per-pose CSV, summary and plots are in $OUT/:"
-echo "  poses.csv  summary.md  boxplot.svg  rig_box.png  rig_panels.png  rig_poses.png  frames/"
+echo "  poses.csv  summary.md  boxplot.svg  rig_box.png  rig_panels.png  rig_poses.png  frames/  check/"
