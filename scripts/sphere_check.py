@@ -20,7 +20,9 @@ rim is not found are told apart:
 
 --out DIR writes DIR/<name>_check.png: the frame (undistorted with a camera file) with that
 circle and a tick on each ray, green where the rim was found, red faint, orange crowded, grey
-outside. --json prints one JSON object per frame instead of the text lines.
+outside. --json prints one JSON object per frame instead of the text lines; without it, several
+frames end with a line that counts the answered (and the range of their rim shares), refused and
+unreadable ones.
 
 Exit status: 0 every frame answered; 1 some frame refused or unreadable; 2 usage error (model,
 camera file, no images).
@@ -322,29 +324,43 @@ def main(argv=None):
         usage_error("no image files given")
     if args.out:
         os.makedirs(args.out, exist_ok=True)
-    status = 0
+    answered, refused, unreadable = [], 0, 0
     for f in files:
-        frame = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-        if frame is None or frame.dtype != np.uint8:
-            error = "cannot decode image (missing, corrupt or not an 8-bit image)"
-            print(json.dumps({"file": str(f), "error": error}) if args.json else f"{f}: {error}", flush=True)
-            status = 1
+        res = check_file(f, p, camera)
+        if "error" in res and "answered" not in res:
+            unreadable += 1
+            print(json.dumps({"file": str(f), "error": res["error"]}) if args.json else f"{f}: {res['error']}",
+                  flush=True)
             continue
-        try:
-            res = check(frame, p, camera)
-        except ValueError as e:  # a frame of another size than the camera file's
-            print(json.dumps({"file": str(f), "error": str(e)}) if args.json else f"{f}: {e}", flush=True)
-            status = 1
-            continue
-        if not res["answered"]:
-            status = 1
+        if res["answered"]:
+            answered.append(res["rim"])
+        else:
+            refused += 1
         if args.out:
             overlay(res, os.path.join(args.out, f"{f.stem}_check.png"))
         if args.json:
             print(json.dumps({"file": str(f), **{k: v for k, v in res.items() if not k.startswith("_")}}), flush=True)
         else:
             print("\n    ".join([f"{f}: {summary(res)}"] + res["advice"]), flush=True)
-    return status
+    if len(files) > 1 and not args.json:
+        thin = sum(1 for v in answered if v < p["min_support"] + MARGIN)
+        lo, hi = (f"{100 * v:.0f}" for v in (min(answered), max(answered))) if answered else ("", "")
+        shares = (f" (rim found on {lo if lo == hi else f'{lo}-{hi}'} % of the rays"
+                  + (f"; {thin} with little margin)" if thin else ")")) if answered else ""
+        print(f"{len(files)} frames: {len(answered)} answered{shares}, {refused} refused, {unreadable} unreadable")
+    return 1 if refused or unreadable else 0
+
+
+def check_file(path, p, camera):
+    """check() of an image file, or {"error": why} when it cannot be read or does not fit the camera
+    file."""
+    frame = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if frame is None or frame.dtype != np.uint8:
+        return {"error": "cannot decode image (missing, corrupt or not an 8-bit image)"}
+    try:
+        return check(frame, p, camera)
+    except ValueError as e:  # a frame of another size than the camera file's
+        return {"error": str(e)}
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@ refused. Frames of the independent ray-caster (bench/raycast) and drawn ones."""
 import importlib.util
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -149,3 +150,17 @@ def test_usage_errors(tmp_path):
                        ([str(tmp_path)], "no image files")):
         proc = subprocess.run([sys.executable, str(SCRIPT), *args], capture_output=True, text=True)
         assert proc.returncode == 2 and want in proc.stderr, (args, proc.stderr)
+
+
+def test_summary_of_several_frames(frames, tmp_path, capsys):
+    (answered, _), (cut, _) = frames
+    bad = tmp_path / "bad name.png"
+    bad.write_bytes(b"")
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps(CAMERA))
+    assert sc.main(["--camera-file", str(cam), str(answered), str(cut), str(bad)]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-2] == f"{bad}: cannot decode image (missing, corrupt or not an 8-bit image)"
+    assert re.fullmatch(r"3 frames: 1 answered \(rim found on \d+ % of the rays\), 1 refused, 1 unreadable", lines[-1])
+    assert sc.main(["--camera-file", str(cam), str(answered)]) == 0
+    assert "frames:" not in capsys.readouterr().out  # one frame: no summary
