@@ -11,13 +11,16 @@ POSES=${POSES:-40}
 echo "demo: $POSES poses on the simulated stage; results go to $OUT"
 scripts/simrig.sh "$OUT" --random "$POSES" --seed "${SEED:-1}" --save-frames
 .venv/bin/python scripts/rig_plots.py "$OUT"
-# what the sphere finder saw in the first frames (docs/rig.md, "Checking the camera's view")
-CAMERA_FILE=${CAMERA_FILE-sim/scenes/rig_camera.json}  # simrig.sh's
+# what the sphere finder saw in three of the frames, the first by name (docs/rig.md,
+# "Checking the camera's view"), with the model and camera file the rig ran with
+source scripts/simrig_env.sh
 cam_opts=()
 [ -z "$CAMERA_FILE" ] || cam_opts+=(--camera-file "$CAMERA_FILE")
 mapfile -t FIRST < <(find "$OUT/frames" -name '*.png' | sort | head -n 3)
-.venv/bin/python scripts/sphere_check.py "${cam_opts[@]}" --out "$OUT/check" "${FIRST[@]}" ||
-  echo "demo: sphere_check refused a frame (above)"
+if [ ${#FIRST[@]} -gt 0 ]; then
+  .venv/bin/python scripts/sphere_check.py --model "$MODEL" "${cam_opts[@]}" --out "$OUT/check" "${FIRST[@]}" ||
+    echo "demo: sphere_check refused or could not read a frame (above)"
+fi
 echo
 echo "demo: done. Per-pose CSV, summary and plots are in $OUT/:"
 echo "  poses.csv  summary.md  boxplot.svg  rig_box.png  rig_panels.png  rig_poses.png  frames/  check/"

@@ -17,10 +17,7 @@ if [ $# -lt 1 ] || [ "$1" = "-h" ] || [ "$1" = "--help" ]; then
 fi
 OUT=$1; shift
 
-MODEL=${MODEL:-training/models/Texture_3_color.onnx}
-SCENE=${SCENE-sim/scenes/rig.json}
-CAMERA_FILE=${CAMERA_FILE-sim/scenes/rig_camera.json}
-[ -n "$SCENE" ] || CAMERA_FILE=""
+source scripts/simrig_env.sh # MODEL, SCENE, CAMERA_FILE
 TEXTURE=${TEXTURE:-build/textures/Texture_3_color.png}
 ELF=${ELF:-firmware/build/spherepose-stage.elf}
 STAGESIM=sim/stage/build/stagesim

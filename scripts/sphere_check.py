@@ -22,10 +22,11 @@ rim is not found are told apart:
 circle and a tick on each ray, green where the rim was found, red faint, orange crowded, grey
 outside. --json prints one JSON object per frame instead of the text lines; without it, several
 frames end with a line that counts the answered (and the range of their rim shares), refused and
-unreadable ones.
+not checked ones.
 
-Exit status: 0 every frame answered; 1 some frame refused or unreadable; 2 usage error (model,
-camera file, no images).
+Exit status: 0 every frame answered; 1 some frame refused, not checked (unreadable, or not of
+the camera file's size) or its drawing not written; 2 usage error (model, camera file, no
+images, --out not a folder).
 """
 import argparse
 import json
@@ -62,36 +63,29 @@ def direction(deg):
 
 
 def ray_kinds(img, circle, p):
-    """Per ray of the circle: rim, faint, crowded or outside (see the module's help)."""
-    k = p["rays"]
+    """Per ray of the circle: rim, faint, crowded or outside (see the module's help), from the
+    rays the finder casts for the circle's support: the colour step along each (the largest over
+    B, G, R of the difference of samples 1 px apart, every half pixel from support_flank_px inside
+    to support_flank_px outside), and whether it leaves the frame."""
     cx, cy, r = circle[:3]
-    ang = 2.0 * math.pi * np.arange(k) / k
-    ux, uy = np.cos(ang), np.sin(ang)
-    h, w = img.shape[:2]
     flank = p["support_flank_px"]
-    ex, ey = cx + (r + flank + 1.0) * ux, cy + (r + flank + 1.0) * uy
-    outside = (ex < 0) | (ex > w - 1) | (ey < 0) | (ey > h - 1)
+    rho, step, outside = pp._ray_scores(img, pp._ray_dirs(p["rays"]), cx, cy, r, flank)
     found = pp.rim_support(img, circle, p)
-    # the colour step along each ray, as the finder measures it: the largest over B, G, R of the
-    # difference of samples 1 px apart, every half pixel from flank inside to flank outside
-    d = np.arange(-flank, flank + 0.25, 0.5)
-    rho = r + d[:, None]
-    mx = (cx + rho * ux[None, :]).astype(np.float32)
-    my = (cy + rho * uy[None, :]).astype(np.float32)
-    v = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(float)
-    step = np.zeros((len(d), k))
-    step[1:-1] = np.abs(v[2:] - v[:-2]).max(axis=2)
-    at_rim = step[np.abs(d) <= RIM_PX].max(axis=0)
-    beyond = step[(d >= RIM_PX + 0.5)].max(axis=0)
+    d = rho[1:-1] - r
+    at_rim = step[:, np.abs(d) <= RIM_PX].max(axis=1)
+    past = d >= RIM_PX + 0.5
+    beyond = step[:, past].max(axis=1) if past.any() else np.zeros(len(found))
     crowded = beyond >= np.maximum(at_rim, p["support_edge_min"])
     return ["rim" if found[i] else "outside" if outside[i] else "crowded" if crowded[i] else "faint"
-            for i in range(k)]
+            for i in range(len(found))]
 
 
 def arcs(kinds, kind):
     """Runs of at least 3 consecutive rays of one kind, around the circle: [(first, last)] as
     angles in degrees (last may exceed 360), the longest first."""
     k = len(kinds)
+    if not kinds:
+        return []
     if all(x == kind for x in kinds):
         return [(0.0, 360.0)]
     start = next(i for i in range(k) if kinds[i] != kind)  # begin after a ray of another kind
@@ -111,7 +105,10 @@ def arcs(kinds, kind):
 
 
 def where(kinds, kind):
-    """Where the two longest arcs of a kind lie, in words ('left and below'; '' without one)."""
+    """Where the two longest arcs of a kind lie, in words ('left and below'; 'all round' for the
+    whole circle; '' without one)."""
+    if kinds and all(x == kind for x in kinds):
+        return "all round"
     sides = []
     for a, b in arcs(kinds, kind)[:2]:
         s = direction((a + b) / 2.0)
@@ -323,21 +320,28 @@ def main(argv=None):
     if not files:
         usage_error("no image files given")
     if args.out:
-        os.makedirs(args.out, exist_ok=True)
-    answered, refused, unreadable = [], 0, 0
+        try:
+            os.makedirs(args.out, exist_ok=True)
+        except OSError as e:
+            usage_error(f"{args.out}: cannot make the folder: {e.strerror}")
+    answered, refused, unchecked, unwritten = [], 0, 0, 0
+    names = set()
     for f in files:
-        res = check_file(f, p, camera)
-        if "error" in res and "answered" not in res:
-            unreadable += 1
-            print(json.dumps({"file": str(f), "error": res["error"]}) if args.json else f"{f}: {res['error']}",
-                  flush=True)
+        res, why = check_file(f, p, camera)
+        if res is None:
+            unchecked += 1
+            print(json.dumps({"file": str(f), "error": why}) if args.json else f"{f}: {why}", flush=True)
             continue
         if res["answered"]:
             answered.append(res["rim"])
         else:
             refused += 1
         if args.out:
-            overlay(res, os.path.join(args.out, f"{f.stem}_check.png"))
+            try:
+                overlay(res, os.path.join(args.out, drawing_name(f, names)))
+            except (OSError, cv2.error) as e:
+                unwritten += 1
+                print(f"sphere_check: {f}: cannot write its drawing: {e}", file=sys.stderr, flush=True)
         if args.json:
             print(json.dumps({"file": str(f), **{k: v for k, v in res.items() if not k.startswith("_")}}), flush=True)
         else:
@@ -347,20 +351,33 @@ def main(argv=None):
         lo, hi = (f"{100 * v:.0f}" for v in (min(answered), max(answered))) if answered else ("", "")
         shares = (f" (rim found on {lo if lo == hi else f'{lo}-{hi}'} % of the rays"
                   + (f"; {thin} with little margin)" if thin else ")")) if answered else ""
-        print(f"{len(files)} frames: {len(answered)} answered{shares}, {refused} refused, {unreadable} unreadable")
-    return 1 if refused or unreadable else 0
+        print(f"{len(files)} frames: {len(answered)} answered{shares}, {refused} refused, {unchecked} not checked")
+    return 1 if refused or unchecked or unwritten else 0
 
 
 def check_file(path, p, camera):
-    """check() of an image file, or {"error": why} when it cannot be read or does not fit the camera
-    file."""
+    """(check() of an image file, None), or (None, why) when it cannot be decoded or is not of the
+    camera file's size."""
     frame = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if frame is None or frame.dtype != np.uint8:
-        return {"error": "cannot decode image (missing, corrupt or not an 8-bit image)"}
-    try:
-        return check(frame, p, camera)
-    except ValueError as e:  # a frame of another size than the camera file's
-        return {"error": str(e)}
+        return None, "cannot decode image (missing, corrupt or not an 8-bit image)"
+    if camera is not None:
+        try:
+            pp._check_size(frame, camera)
+        except ValueError as e:
+            return None, str(e)
+    return check(frame, p, camera), None
+
+
+def drawing_name(path, names):
+    """<stem>_check.png, or <stem>_2_check.png, ... when an earlier frame of the run took it (a.png
+    and a.jpg, or one name in two folders)."""
+    name, n = f"{path.stem}_check.png", 1
+    while name in names:
+        n += 1
+        name = f"{path.stem}_{n}_check.png"
+    names.add(name)
+    return name
 
 
 if __name__ == "__main__":

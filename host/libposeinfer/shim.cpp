@@ -6,10 +6,10 @@
 #include "pi_err.h"
 
 #include <algorithm>
+#include <cerrno>
 #include <climits>
 #include <cmath>
 #include <cstdio>
-#include <cerrno>
 #include <cstring>
 #include <string>
 #include <vector>

@@ -4,6 +4,7 @@
 #include <dirent.h>
 #include <errno.h>
 #include <getopt.h>
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -49,7 +50,8 @@ static void usage(FILE *f)
         "      --count N          stop after N frames in --continuous (default 0: run on) [count]\n"
         "      --interval-ms N    pause between continuous frames (default 0) [interval_ms]\n"
         "      --save-frames DIR  in --continuous, write each frame as DIR/frame_NNNNNN.png (the\n"
-        "                         line's \"frame\" number; DIR is made if missing) [save_frames]\n"
+        "                         line's \"frame\" number; DIR made if its parent exists) "
+        "[save_frames]\n"
         "      --threads N        ONNX Runtime intra-op threads (default 1) [threads]\n"
         "      --warmup N         warm-up runs at model load (default 1) [warmup]\n"
         "      --max-pixels N     refuse larger images (default 67108864) [max_pixels]\n"
@@ -118,10 +120,15 @@ static int is_image_name(const char *name)
     return 0;
 }
 
-/* DIR made if missing (one level, as mkdir), or -1 with err "DIR: reason". */
+/* --save-frames' DIR, made if missing (one level, as mkdir: its parent must
+ * exist), or -1 with err "DIR: reason". The frames' names must fit PATH_MAX. */
 static int make_dir(const char *dir, char *err)
 {
     struct stat st;
+    if (strlen(dir) > PATH_MAX - 32) {
+        pi_seterr(err, "%.64s...: the folder's name is too long", dir);
+        return -1;
+    }
     if (mkdir(dir, 0777) < 0 && errno != EEXIST) {
         pi_seterr(err, "%s: cannot make the folder: %s", dir, strerror(errno));
         return -1;

@@ -1030,8 +1030,9 @@ int server_run(app *a, int lfd, const char *spec, char *err)
 }
 
 /* --save-frames: grab frame n, write it as DIR/frame_NNNNNN.png (saved: that
- * path; empty, and the reason logged, when it cannot be written: the pose is
- * still measured), and infer on it. 1 when a pose came back, 0 with e. */
+ * path, which fits: main.c bounds DIR's length; empty, and the reason logged,
+ * when it cannot be written: the pose is still measured), and infer on it. 1
+ * when a pose came back, 0 with e. */
 static int grab_and_save(app *a, unsigned long n, char *saved, size_t len, pi_result *r, char *e)
 {
     pi_frame f;

@@ -127,8 +127,7 @@ def test_frames_checked_and_drawn(frames, p, tmp_path):
     assert not c["answered"] and c["error"].startswith("sphere cut by the frame edge")
     assert "whole sphere is in the frame" in c["advice"][0]
     drawn = sorted(f.name for f in out.iterdir())
-    assert drawn == [f"{cut.stem}_check.png", f"{answered.stem}_check.png"] or \
-        drawn == sorted([f"{cut.stem}_check.png", f"{answered.stem}_check.png"])
+    assert drawn == sorted([f"{cut.stem}_check.png", f"{answered.stem}_check.png"])
     img = cv2.imread(str(out / f"{answered.stem}_check.png"))
     assert img.shape[1] == 640 and img.shape[0] > 512  # the words below the frame
 
@@ -161,6 +160,33 @@ def test_summary_of_several_frames(frames, tmp_path, capsys):
     assert sc.main(["--camera-file", str(cam), str(answered), str(cut), str(bad)]) == 1
     lines = capsys.readouterr().out.splitlines()
     assert lines[-2] == f"{bad}: cannot decode image (missing, corrupt or not an 8-bit image)"
-    assert re.fullmatch(r"3 frames: 1 answered \(rim found on \d+ % of the rays\), 1 refused, 1 unreadable", lines[-1])
+    assert re.fullmatch(r"3 frames: 1 answered \(rim found on \d+ % of the rays\), 1 refused, 1 not checked", lines[-1])
     assert sc.main(["--camera-file", str(cam), str(answered)]) == 0
     assert "frames:" not in capsys.readouterr().out  # one frame: no summary
+
+
+def test_arcs_round_the_circle():
+    kinds = ["rim"] * 16
+    for i in (14, 15, 0, 1):  # a run through ray 0
+        kinds[i] = "faint"
+    assert sc.arcs(kinds, "faint") == [(315.0, 382.5)]
+    assert sc.where(kinds, "faint") == "right"
+    assert sc.where(["faint"] * 16, "faint") == "all round"
+    assert sc.arcs([], "faint") == [] and sc.where([], "faint") == ""
+    kinds[6:8] = ["crowded"] * 2  # two rays: no arc
+    assert sc.arcs(kinds, "crowded") == [] and sc.where(kinds, "crowded") == ""
+
+
+def test_drawing_names_kept_apart(tmp_path):
+    names = set()
+    assert [sc.drawing_name(Path(n), names) for n in ("a.png", "a.jpg", "d/a.png", "b.png")] == \
+        ["a_check.png", "a_2_check.png", "a_3_check.png", "b_check.png"]
+
+
+def test_frame_of_another_size(tmp_path, capsys):
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((100, 120, 3), np.uint8))
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps(CAMERA))
+    assert sc.main(["--camera-file", str(cam), str(small)]) == 1
+    assert capsys.readouterr().out.strip() == f"{small}: frame is 120x100, the camera file's calibration is for 640x512"
