@@ -98,7 +98,8 @@ def test_advice_says_why(p):
     kinds = sc.ray_kinds(img, circle, p)
     faint = sc.advice("no sphere found in frame", circle, 0.3, kinds, p, img, None)
     assert "the rim is faint on" in faint[0] and "(left" in faint[0] and "backdrop darker or brighter" in faint[0]
-    assert faint[0].startswith("a frame needs 42 %")
+    assert faint[0].startswith("if the best circle lies on your sphere, a frame needs 42 %")
+    assert faint[1].startswith("if it does not, the sphere was not found at all")
     margin = sc.advice(None, circle, p["min_support"] + 0.05, kinds, p, img, None)
     assert margin[0].startswith("little margin: a frame is refused below 42 %")
     assert sc.advice(None, circle, p["min_support"] + sc.MARGIN, kinds, p, img, None) == []
