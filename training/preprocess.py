@@ -1180,6 +1180,21 @@ def _rim(rays, peaks, dirs, fit, new, p):
     docs/bench/localise.md, "The circle refitted through the rims"). Fewer than 8 rims: the new
     circle unchanged. Returns ((cx, cy, r), near): near, how many rims lie within RIM_NEAR
     inlier_px of that circle (0 with fewer than 8), judges it against another (_final_circle)."""
+    nx, ny, nr = new
+    rims = _rims(rays, peaks, dirs, fit, new, p)
+    if rims is None:
+        return (nx, ny, nr), 0
+    xs, ys, r0 = rims
+    x, y, r = _through_rims(xs, ys, r0, p)
+    tol = RIM_NEAR * p["inlier_px"]
+    near = sum(1 for ex, ey in zip(xs, ys)
+               if abs(math.sqrt((ex - x) * (ex - x) + (ey - y) * (ey - y)) - r) <= tol)
+    return (nx + x, ny + y, r), near
+
+
+def _rims(rays, peaks, dirs, fit, new, p):
+    """The rims of _rim, about the centre of circle `new`: (xs, ys, the new radius moved by the
+    median of their distances from it), or None with fewer than 8."""
     cx, cy = fit[0], fit[1]
     nx, ny, nr = new
     rho, score, bad = rays
@@ -1215,7 +1230,7 @@ def _rim(rays, peaks, dirs, fit, new, p):
         outer[k] = o
         width.append(o - pos[k, best - 1])
     if len(width) < 8:
-        return (nx, ny, nr), 0
+        return None
     hw = sorted(width)[(len(width) - 1) // 2]
     xs, ys, off = [], [], []  # the rims about the new centre, and their distances from the circle
     for k in range(len(dirs)):
@@ -1225,11 +1240,45 @@ def _rim(rays, peaks, dirs, fit, new, p):
             xs.append(ex)
             ys.append(ey)
             off.append(math.sqrt(ex * ex + ey * ey) - nr)
-    x, y, r = _through_rims(xs, ys, nr + _median(off), p)
-    tol = RIM_NEAR * p["inlier_px"]
-    near = sum(1 for ex, ey in zip(xs, ys)
-               if abs(math.sqrt((ex - x) * (ex - x) + (ey - y) * (ey - y)) - r) <= tol)
-    return (nx + x, ny + y, r), near
+    return xs, ys, nr + _median(off)
+
+
+def _centre_covariance(xs, ys, x, y, r, p):
+    """The covariance of the centre of circle (x, y, r) fitted through the rims (xs, ys) (_rim's
+    refit, _through_rims): s2 times the centre's block of (J^T W J)^-1. J holds each rim's
+    residual's derivatives by x, y and r, W the refit's weights about the circle (Tukey at the
+    floor of the robust scale), s2 the weighted mean square residual over sum(W) - 3. Where rims
+    are missing on two opposite arcs (a sphere past the frame's edge above, the post below), the
+    centre is held loosely along that axis, and the covariance says so. Returns (cxx, cxy, cyy), or
+    None with fewer than 8 rims of weight or no inverse."""
+    dist = [math.sqrt((ex - x) * (ex - x) + (ey - y) * (ey - y)) for ex, ey in zip(xs, ys)]
+    res = [d - r for d in dist]
+    wts = _tukey_floor_weights(res, p)
+    a00 = a01 = a02 = a11 = a12 = sw = sq = 0.0
+    used = 0
+    for i in range(len(xs)):
+        wi = wts[i]
+        if wi == 0.0:
+            continue
+        used += 1
+        jx, jy = -(xs[i] - x) / dist[i], -(ys[i] - y) / dist[i]  # and -1 by r
+        a00 += wi * jx * jx
+        a01 += wi * jx * jy
+        a02 -= wi * jx
+        a11 += wi * jy * jy
+        a12 -= wi * jy
+        sw += wi
+        sq += wi * res[i] * res[i]
+    if used < 8 or not sw > 3.0:
+        return None
+    c00 = a11 * sw - a12 * a12
+    c01 = a02 * a12 - a01 * sw
+    c11 = a00 * sw - a02 * a02
+    det = a00 * c00 + a01 * c01 + a02 * (a01 * a12 - a11 * a02)
+    if not det > 0.0:
+        return None
+    s2 = sq / (sw - 3.0)
+    return s2 * c00 / det, s2 * c01 / det, s2 * c11 / det
 
 
 def _through_rims(xs, ys, r, p):
@@ -1740,6 +1789,25 @@ def find_sphere(frame, p=None, camera=None, fits=None):
         return _find_sphere_v1(frame, p)
     cx, cy, r = _find_sphere_v2(frame, p, camera, fits)
     return cx, cy, r, np.asarray(p["fill"], np.float64)
+
+
+def rim_covariance(frame, circle, p=None):
+    """The covariance of the centre of the sphere's rim found from a circle, as rim_from finds it
+    (v2 only): (cxx, cxy, cyy) in px^2 (_centre_covariance), or None with fewer than 8 rims or no
+    inverse. The refinement weighs the localisation's centre by it against the refined centre
+    (training/refine.py CENTRE_FUSE_PX). frame: undistorted BGR uint8; circle: (cx, cy, r),
+    OpenCV pixel coordinates."""
+    p = p or DEFAULTS
+    img = _as_bgr(frame)
+    dirs = _ray_dirs(p["rays"])
+    c = tuple(float(v) for v in circle[:3])
+    rays, peaks = _refit_rays(img, dirs, c, p)
+    rims = _rims(rays, peaks, dirs, c, c, p)
+    if rims is None:
+        return None
+    xs, ys, r0 = rims
+    x, y, r = _through_rims(xs, ys, r0, p)
+    return _centre_covariance(xs, ys, x, y, r, p)
 
 
 def rim_support(frame, circle, p=None):

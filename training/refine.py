@@ -62,6 +62,20 @@ CHECK_DEG = 2.5       # ... or the pose farther from the network's than this, an
 # refinement".
 RIM_CHECK_PCT = 0.2
 
+# The printed centre, a confident answer's: the localisation's (or that rim's) and the refined
+# centre, each weighed by its covariance. The localisation's comes from its rims
+# (preprocess.rim_covariance); the refined one's is taken as CENTRE_FUSE_PX^2 times the identity,
+# so c = l + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - l). Where rims lie all round, C is about 0.001-0.004
+# px^2 and the refined centre (0.17 px off at the median) moves the printed one by a few
+# hundredths. Where two opposite arcs have none (a sphere past the frame's edge with the post
+# below), C is large along that axis, and the refined centre, which the whole texture holds, leads
+# there. The rims' errors are correlated, so C understates them. CENTRE_FUSE_PX is therefore
+# smaller than the refined centre's own scatter: it was chosen among 0.06-0.14 on 5 998 development
+# frames of the ray-caster (seeds 475-498), and the centre's p99 moved from 0.32 to 0.27 px and
+# the frames outside 0.5 px from 4 to 2; on 3 597 frames of seeds 499-510 from 0.31 to 0.26 px and
+# from 3 to 0 (docs/bench/localise.md, "The centre weighed against the refined centre").
+CENTRE_FUSE_PX = 0.1
+
 
 # ---- texture --------------------------------------------------------------------------------
 
@@ -597,18 +611,37 @@ class Refiner:
         """The sphere's circle as poseinfer prints it, continuous coordinates: the localisation's
         (circle as __call__ takes it), or, when a confident answer's refined circle (`refined`)
         has a radius more than RIM_CHECK_PCT percent off it, the rim found from the refined
-        circle (sphere-crop-v2 models; the localisation's when rim_from finds none)."""
+        circle (sphere-crop-v2 models; the localisation's when rim_from finds none); for a
+        confident answer its centre weighed against the refined centre (fused_centre)."""
         from training import preprocess as pp
         found = [circle[0], circle[1], circle[2] - 0.5]
-        if refined is None or not 100.0 * abs(refined[2] / found[2] - 1.0) > RIM_CHECK_PCT:
+        if refined is None:
             return found
         if self.pp is None:
             self.pp = pp.params(self.meta.get("spherepose.preprocess"))
         p = self.pp
         if p["name"] != pp.NAME_V2:
             return found
-        rim = pp.rim_from(frame, (refined[0] - 0.5, refined[1] - 0.5, refined[2]), p)
-        return found if rim is None else [rim[0] + 0.5, rim[1] + 0.5, rim[2]]
+        c = (found[0] - 0.5, found[1] - 0.5, found[2])  # OpenCV's pixel centres
+        if 100.0 * abs(refined[2] / found[2] - 1.0) > RIM_CHECK_PCT:
+            rim = pp.rim_from(frame, (refined[0] - 0.5, refined[1] - 0.5, refined[2]), p)
+            c = c if rim is None else rim
+        cov = pp.rim_covariance(frame, c, p)
+        x, y = (c[0], c[1]) if cov is None else fused_centre(c, cov, (refined[0] - 0.5, refined[1] - 0.5))
+        return [x + 0.5, y + 0.5, c[2]]
+
+
+def fused_centre(c, cov, f):
+    """The centre c = (x, y) weighed against the refined centre f by c's covariance cov = (cxx,
+    cxy, cyy) (preprocess.rim_covariance) and CENTRE_FUSE_PX (the refined centre's):
+    c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c)."""
+    t2 = CENTRE_FUSE_PX * CENTRE_FUSE_PX
+    cxx, cxy, cyy = cov
+    a, b, d = cxx + t2, cxy, cyy + t2
+    det = a * d - b * b
+    gx, gy = f[0] - c[0], f[1] - c[1]
+    ux, uy = (d * gx - b * gy) / det, (a * gy - b * gx) / det
+    return c[0] + cxx * ux + cxy * uy, c[1] + cxy * ux + cyy * uy
 
 
 def network_estimate(sess, meta, frame, camera=None, model="the model"):

@@ -1962,20 +1962,17 @@ static void through_rims(const std::vector<double> &xs, const std::vector<double
 // another (preprocess.py RIM_NEAR: the same value, and its measured reason).
 constexpr double rim_near = 0.5;
 
-// The circle (nx, ny, nr) moved to the rim (preprocess.py _rim), from the
-// support rays of circle a (about a's centre): on each ray the peak nearest
-// where the ray crosses it, its outer half-maximum less the edge half-width,
-// the median of their distances from the circle added to its radius, and the
-// circle refitted through those rims (through_rims: the steps lean inwards
-// where the limb darkens to the backdrop's level, the rims do not). Returns
-// how many rims lie within rim_near inlier_px of the circle (0 with fewer
-// than 8 rims: the circle unchanged).
-static int rim(const std::vector<double> &dirs, const pp_params *p, const Found &a,
-               const Rays &rays, double nx, double ny, double nr, double *ocx, double *ocy,
-               double *orad)
+// The rims of rim() about the centre of circle (nx, ny, nr) (preprocess.py
+// _rims), from the support rays of circle a (about a's centre): on each ray
+// the peak nearest where the ray crosses the circle, its outer half-maximum
+// less the edge half-width. xs, ys: the rims about (nx, ny); *r0: nr moved by
+// the median of their distances from the circle. False with fewer than 8.
+static bool rims(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+                 const Rays &rays, double nx, double ny, double nr, std::vector<double> &xs,
+                 std::vector<double> &ys, double *r0)
 {
     const int K = (int)dirs.size() / 2;
-    thread_local std::vector<double> w, outer, xs, ys;
+    thread_local std::vector<double> w, outer;
     const int32_t *poff = rays.off.data();
     const double *pp = rays.pos.data();
     // the rim, on each ray near where it crosses the new circle (outer: NaN
@@ -2003,11 +2000,8 @@ static int rim(const std::vector<double> &dirs, const pp_params *p, const Found 
         outer[(size_t)k] = rays.outer[(size_t)best];
         w.push_back(rays.outer[(size_t)best] - pp[best]);
     }
-    *ocx = nx;
-    *ocy = ny;
-    *orad = nr;
     const size_t m = w.size();
-    if (m < 8) return 0;
+    if (m < 8) return false;
     std::nth_element(w.begin(), w.begin() + (long)((m - 1) / 2), w.end());
     const double hw = w[(m - 1) / 2];
     w.clear();  // now the rims' distances from the circle, in ray order
@@ -2021,17 +2015,82 @@ static int rim(const std::vector<double> &dirs, const pp_params *p, const Found 
             ys.push_back(ey);
             w.push_back(std::sqrt(ex * ex + ey * ey) - nr);
         }
-    double x, y, r = nr + median_of(w.data(), w.size());
+    *r0 = nr + median_of(w.data(), w.size());
+    return true;
+}
+
+// The circle (nx, ny, nr) moved to the rim (preprocess.py _rim): refitted
+// through its rims (rims(); through_rims: the steps lean inwards where the
+// limb darkens to the backdrop's level, the rims do not). Returns how many
+// rims lie within rim_near inlier_px of the circle (0 with fewer than 8
+// rims: the circle unchanged).
+static int rim(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+               const Rays &rays, double nx, double ny, double nr, double *ocx, double *ocy,
+               double *orad)
+{
+    thread_local std::vector<double> xs, ys, w;
+    *ocx = nx;
+    *ocy = ny;
+    *orad = nr;
+    double x, y, r;
+    if (!rims(dirs, p, a, rays, nx, ny, nr, xs, ys, &r)) return 0;
     through_rims(xs, ys, p, &x, &y, &r);
     *ocx = nx + x;
     *ocy = ny + y;
     *orad = r;
-    // the rims near it (w: scratch)
+    // the rims near it
     w.resize(xs.size());
     residuals(xs.data(), ys.data(), xs.size(), x, y, r, w.data());
     int near = 0;
     for (double v : w) near += std::fabs(v) <= rim_near * p->inlier_px;
     return near;
+}
+
+// The covariance of the centre of circle (x, y, r) fitted through the rims
+// (xs, ys) (preprocess.py _centre_covariance): s2 times the centre's block of
+// (J^T W J)^-1, J each rim's residual's derivatives by x, y, r, W the Tukey
+// weights at the floor of the robust scale, s2 the weighted mean square
+// residual over sum(W) - 3. False with fewer than 8 rims of weight or no
+// inverse.
+static bool centre_covariance(const std::vector<double> &xs, const std::vector<double> &ys,
+                              double x, double y, double r, const pp_params *p, double cov[3])
+{
+    thread_local std::vector<double> dist, res, wts;
+    const size_t n = xs.size();
+    dist.resize(n);
+    res.resize(n);
+    wts.resize(n);
+    for (size_t i = 0; i < n; i++) {
+        dist[i] = std::sqrt((xs[i] - x) * (xs[i] - x) + (ys[i] - y) * (ys[i] - y));
+        res[i] = dist[i] - r;
+    }
+    tukey_weights(res.data(), n, p->tukey_c * p->sigma_min_px, wts.data());
+    double a00 = 0.0, a01 = 0.0, a02 = 0.0, a11 = 0.0, a12 = 0.0, sw = 0.0, sq = 0.0;
+    int used = 0;
+    for (size_t i = 0; i < n; i++) {
+        const double wi = wts[i];
+        if (wi == 0.0) continue;
+        used++;
+        const double jx = -(xs[i] - x) / dist[i], jy = -(ys[i] - y) / dist[i]; // and -1 by r
+        a00 += wi * jx * jx;
+        a01 += wi * jx * jy;
+        a02 -= wi * jx;
+        a11 += wi * jy * jy;
+        a12 -= wi * jy;
+        sw += wi;
+        sq += wi * res[i] * res[i];
+    }
+    if (used < 8 || !(sw > 3.0)) return false;
+    const double c00 = a11 * sw - a12 * a12;
+    const double c01 = a02 * a12 - a01 * sw;
+    const double c11 = a00 * sw - a02 * a02;
+    const double det = a00 * c00 + a01 * c01 + a02 * (a01 * a12 - a11 * a02);
+    if (!(det > 0.0)) return false;
+    const double s2 = sq / (sw - 3.0);
+    cov[0] = s2 * c00 / det;
+    cov[1] = s2 * c01 / det;
+    cov[2] = s2 * c11 / det;
+    return true;
 }
 
 // The last step from circle a (preprocess.py _last_step), from its support's
@@ -2794,6 +2853,21 @@ int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p
     // the circle's support rays (the support itself decides nothing here)
     const Found a = {cx, cy, r, support(f, dirs, cx, cy, r, p, &rays)};
     return rim(dirs, p, a, rays, cx, cy, r, ocx, ocy, orad) > 0 ? 0 : -1;
+}
+
+int rim_covariance(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
+                   double cy, double r, double cov[3])
+{
+    thread_local std::vector<double> dirs, xs, ys;
+    if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
+    thread_local Rays rays;
+    const Frame f = {bgr, stride, w, h};
+    // the circle's support rays (the support itself decides nothing here)
+    const Found a = {cx, cy, r, support(f, dirs, cx, cy, r, p, &rays)};
+    double x, y, rr;
+    if (!rims(dirs, p, a, rays, cx, cy, r, xs, ys, &rr)) return -1;
+    through_rims(xs, ys, p, &x, &y, &rr);
+    return centre_covariance(xs, ys, x, y, rr, p, cov) ? 0 : -1;
 }
 
 void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r,

@@ -30,6 +30,12 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
 int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
              double cy, double r, double *ocx, double *ocy, double *orad);
 
+// The covariance of the centre of the sphere's rim found from a circle, as
+// rim_from finds it (preprocess.py rim_covariance): cov = (cxx, cxy, cyy) in
+// px^2. Returns 0, or -1 with fewer than 8 rims or no inverse.
+int rim_covariance(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
+                   double cy, double r, double cov[3]);
+
 // Crop (steps after the circle): the square of side 2 r margin around it,
 // outside the frame `fill`, reduced to size x size (INTER_AREA), every output
 // pixel farther than r (1 + mask_frac) from the centre set to `fill`. Writes

@@ -793,19 +793,30 @@ fail:
     return -1;
 }
 
-/* The circle after refinement (docs/refine.md): the texture fixes the
- * refined radius within about 0.1 %; where it differs from the localisation's
- * by more than RF_RIM_CHECK_PCT %, the localisation's circle is likely off, and the
- * rim found from the refined circle is the sphere's (sphere-crop-v2; the
- * localisation's stands when shim_rim_from finds no rim or fails). */
-static void rim_check(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
+/* The circle after refinement (docs/refine.md, steps 8 and 9; training/refine.py
+ * printed_circle): the texture fixes the refined radius within about 0.1 %;
+ * where it differs from the localisation's by more than RF_RIM_CHECK_PCT %,
+ * the localisation's circle is likely off, and the rim found from the refined
+ * circle is the sphere's (the localisation's stands when shim_rim_from finds
+ * no rim or fails). That circle's centre is then weighed against the refined
+ * centre by its rims' covariance (rf_fused_centre; unchanged when
+ * shim_rim_covariance has none). sphere-crop-v2 only. */
+static void printed_circle(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
 {
     char rerr[PI_ERR_LEN];
-    double cx, cy, r;
-    if (ctx->pp.version != 2 || !(100.0 * fabs(res->rr / res->r - 1.0) > RF_RIM_CHECK_PCT)) return;
-    if (shim_rim_from(frame, &ctx->pp, res->rcx - 0.5, res->rcy - 0.5, res->rr, &cx, &cy, &r,
-                      rerr) != 0)
-        return;
+    double cx = res->cx, cy = res->cy, r = res->r, cov[3];
+    if (ctx->pp.version != 2) return;
+    if (100.0 * fabs(res->rr / res->r - 1.0) > RF_RIM_CHECK_PCT) {
+        double rx, ry, rrad;
+        if (shim_rim_from(frame, &ctx->pp, res->rcx - 0.5, res->rcy - 0.5, res->rr, &rx, &ry, &rrad,
+                          rerr) == 0) {
+            cx = rx;
+            cy = ry;
+            r = rrad;
+        }
+    }
+    if (shim_rim_covariance(frame, &ctx->pp, cx, cy, r, cov, rerr) == 0)
+        rf_fused_centre(cx, cy, cov, res->rcx - 0.5, res->rcy - 0.5, &cx, &cy);
     res->circle[0] = cx + 0.5;
     res->circle[1] = cy + 0.5;
     res->circle[2] = r;
@@ -861,7 +872,7 @@ static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
     res->confident =
         rf_judge(&ctx->rf_conf, o.residual, o.colour, moved, ctx->rf_on ? o.euler : res->net,
                  ctx->rf_on, res->note, sizeof res->note);
-    if (res->refined && res->confident) rim_check(ctx, frame, res);
+    if (res->refined && res->confident) printed_circle(ctx, frame, res);
     res->refine_ms = pi_now_ms() - t0;
 }
 

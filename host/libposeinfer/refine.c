@@ -2163,3 +2163,15 @@ int rf_refine_checked(const rf_texture *t, rf_work *w, const rf_image *frame, do
     }
     return 0;
 }
+
+void rf_fused_centre(double cx, double cy, const double cov[3], double fx, double fy, double *ox,
+                     double *oy)
+{
+    const double t2 = RF_CENTRE_FUSE_PX * RF_CENTRE_FUSE_PX;
+    const double a = cov[0] + t2, b = cov[1], d = cov[2] + t2;
+    const double det = a * d - b * b;
+    const double gx = fx - cx, gy = fy - cy;
+    const double ux = (d * gx - b * gy) / det, uy = (a * gy - b * gx) / det;
+    *ox = cx + cov[0] * ux + cov[1] * uy;
+    *oy = cy + cov[1] * ux + cov[2] * uy;
+}

@@ -87,6 +87,14 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
  * (sphere-crop-v2). */
 #define RF_RIM_CHECK_PCT 0.2
 
+/* The printed centre, a confident answer's (training/refine.py
+ * CENTRE_FUSE_PX, fused_centre): the localisation's (or that rim's) weighed
+ * against the refined centre, c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c), C the
+ * covariance of c (cxx, cxy, cyy: crop2 rim_covariance). */
+#define RF_CENTRE_FUSE_PX 0.1
+void rf_fused_centre(double cx, double cy, const double cov[3], double fx, double fy, double *ox,
+                     double *oy);
+
 /* The angle of the rotation from B to A, degrees. */
 double rf_rotation_deg(const double A[3][3], const double B[3][3]);
 

@@ -365,6 +365,18 @@ extern "C" int shim_rim_from(const pi_frame *f, const pp_params *p, double cx, d
     return -1;
 }
 
+extern "C" int shim_rim_covariance(const pi_frame *f, const pp_params *p, double cx, double cy,
+                                   double r, double cov[3], char *err)
+{
+    try {
+        const cv::Mat bgr = bgr_of(f);
+        return crop2::rim_covariance(bgr.data, bgr.cols, bgr.rows, bgr.step[0], p, cx, cy, r, cov) <
+               0;
+    }
+    SHIM_CATCH("rim")
+    return -1;
+}
+
 extern "C" int shim_crop2_avx512(void)
 {
     return crop2::uses_avx512();

@@ -104,6 +104,13 @@ int shim_preprocess_seen(const pi_frame *f, const pp_params *p, float *out, pp_c
 int shim_rim_from(const pi_frame *f, const pp_params *p, double cx, double cy, double r,
                   double *ocx, double *ocy, double *orad, char *err);
 
+/* sphere-crop-v2: the covariance (cxx, cxy, cyy, px^2) of the centre of the
+ * sphere's rim found from a circle (crop2.h rim_covariance), in a frame as
+ * *seen gives it. Returns 0, 1 with fewer than 8 rims or no inverse, -1 with
+ * err (out of memory). */
+int shim_rim_covariance(const pi_frame *f, const pp_params *p, double cx, double cy, double r,
+                        double cov[3], char *err);
+
 /* Write a frame to an image file (format from the extension). */
 int shim_save(const pi_frame *f, const char *path, char *err);
 

@@ -301,13 +301,14 @@ def test_c_parameters_match(tmp_path):
 
 def test_c_check_parameters_match():
     """host/libposeinfer/refine.h copies the convergence check's parameters, the default
-    converge_max_deg and the circle check's RIM_CHECK_PCT."""
+    converge_max_deg, the circle check's RIM_CHECK_PCT and the centre's CENTRE_FUSE_PX."""
     h = (REPO / "host" / "libposeinfer" / "refine.h").read_text()
     defs = {line.split()[1]: line.split()[2] for line in h.splitlines()
-            if line.startswith(("#define RF_CHECK_", "#define RF_RIM_CHECK_"))}
+            if line.startswith(("#define RF_CHECK_", "#define RF_RIM_CHECK_", "#define RF_CENTRE_FUSE_"))}
     assert int(defs["RF_CHECK_PASSES"]) == rf.CHECK_PASSES
     assert float(defs["RF_CHECK_PX"]) == rf.CHECK_PX and float(defs["RF_CHECK_DEG"]) == rf.CHECK_DEG
     assert float(defs["RF_RIM_CHECK_PCT"]) == rf.RIM_CHECK_PCT
+    assert float(defs["RF_CENTRE_FUSE_PX"]) == rf.CENTRE_FUSE_PX
     c = (REPO / "host" / "libposeinfer" / "confidence.c").read_text()
     assert f"c->converge_max_deg = {rf.DEFAULT_CONFIDENCE['converge_max_deg']};" in c
 
