@@ -1243,6 +1243,18 @@ def _rims(rays, peaks, dirs, fit, new, p):
     return xs, ys, nr + _median(off)
 
 
+def _rims_covariance(rays, peaks, dirs, fit, c, p):
+    """The covariance of the centre of circle c (_centre_covariance) from its rims (_rims) on the
+    rays of circle `fit` (rays, peaks: _refit_rays of fit), refitted as _rim refits them; None
+    with fewer than 8 rims, or as _centre_covariance."""
+    rims = _rims(rays, peaks, dirs, fit, c[:3], p)
+    if rims is None:
+        return None
+    xs, ys, r0 = rims
+    x, y, r = _through_rims(xs, ys, r0, p)
+    return _centre_covariance(xs, ys, x, y, r, p)
+
+
 def _centre_covariance(xs, ys, x, y, r, p):
     """The covariance of the centre of circle (x, y, r) fitted through the rims (xs, ys) (_rim's
     refit, _through_rims): s2 times the centre's block of (J^T W J)^-1. J holds each rim's
@@ -1657,7 +1669,7 @@ def _check_size(frame, camera):
         raise ValueError(f"frame is {w}x{h}, the camera file's calibration is for {cw}x{ch}")
 
 
-def _find_sphere_v2(frame, p, camera=None, fits_out=None):
+def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
     h, w = frame.shape[:2]
     if camera is not None:
         _check_size(frame, camera)
@@ -1747,7 +1759,14 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None):
             raise NoSphere(_two_spheres(a, g))
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)
-    return _final_circle(frame, dirs, a, p)
+    c = _final_circle(frame, dirs, a, p)
+    if cov_out is not None:
+        # its centre's covariance, from its rims on the fit's rays (the refinement weighs it
+        # against the refined centre: training/refine.py CENTRE_FUSE_PX)
+        cov = _rims_covariance(*_refit_rays(frame, dirs, a, p), dirs, a, c, p)
+        if cov is not None:
+            cov_out.extend(cov)
+    return c
 
 
 def _last_step(rays, peaks, dirs, c, p):
@@ -1777,37 +1796,20 @@ def _final_circle(img, dirs, a, p):
 
 # ---- the public steps -----------------------------------------------------------------------
 
-def find_sphere(frame, p=None, camera=None, fits=None):
+def find_sphere(frame, p=None, camera=None, fits=None, cov=None):
     """(cx, cy, r, bg) of the sphere in a BGR uint8 frame (OpenCV pixel coordinates: pixel
     centres at integers); bg is v1's background colour, v2's fill colour. NoSphere says why
     there is none. v2 expects an undistorted frame (see undistort, crop_frame). A list `fits`
     (v2) gets the circles the sphere was chosen from, (cx, cy, r, support) each, also when there
-    is none: what scripts/sphere_check.py shows a user of a refused frame."""
+    is none: what scripts/sphere_check.py shows a user of a refused frame. A list `cov` (v2)
+    gets the covariance of the circle's centre from its rims, (cxx, cxy, cyy) in px^2
+    (_centre_covariance), when there is one."""
     p = p or DEFAULTS
     frame = _as_bgr(frame)
     if p["name"] == NAME_V1:
         return _find_sphere_v1(frame, p)
-    cx, cy, r = _find_sphere_v2(frame, p, camera, fits)
+    cx, cy, r = _find_sphere_v2(frame, p, camera, fits, cov)
     return cx, cy, r, np.asarray(p["fill"], np.float64)
-
-
-def rim_covariance(frame, circle, p=None):
-    """The covariance of the centre of the sphere's rim found from a circle, as rim_from finds it
-    (v2 only): (cxx, cxy, cyy) in px^2 (_centre_covariance), or None with fewer than 8 rims or no
-    inverse. The refinement weighs the localisation's centre by it against the refined centre
-    (training/refine.py CENTRE_FUSE_PX). frame: undistorted BGR uint8; circle: (cx, cy, r),
-    OpenCV pixel coordinates."""
-    p = p or DEFAULTS
-    img = _as_bgr(frame)
-    dirs = _ray_dirs(p["rays"])
-    c = tuple(float(v) for v in circle[:3])
-    rays, peaks = _refit_rays(img, dirs, c, p)
-    rims = _rims(rays, peaks, dirs, c, c, p)
-    if rims is None:
-        return None
-    xs, ys, r0 = rims
-    x, y, r = _through_rims(xs, ys, r0, p)
-    return _centre_covariance(xs, ys, x, y, r, p)
 
 
 def rim_support(frame, circle, p=None):
@@ -1819,7 +1821,7 @@ def rim_support(frame, circle, p=None):
     return _support_rays(_as_bgr(frame), _ray_dirs(p["rays"]), cx, cy, r, p)
 
 
-def rim_from(frame, circle, p=None):
+def rim_from(frame, circle, p=None, cov=None):
     """The sphere's rim found from a circle measured another way (v2 only): the refinement's,
     whose radius the texture fixes within about 0.1 % (docs/refine.md, "The circle after
     refinement"). The rim step alone (_rim, from the circle's support rays): on each ray the
@@ -1828,14 +1830,21 @@ def rim_from(frame, circle, p=None):
     edge: from so near a start the nearest peak is the rim's, where the outermost can be a
     backdrop's edge just outside it. frame: undistorted BGR uint8; circle: (cx, cy, r), OpenCV
     pixel coordinates. Returns (cx, cy, r), or None with fewer than 8 rims or none of them near
-    the refitted circle (_rim's near, 0)."""
+    the refitted circle (_rim's near, 0). A list `cov` gets its centre's covariance from those
+    rims, (cxx, cxy, cyy) in px^2 (_centre_covariance), when there is one."""
     p = p or DEFAULTS
     img = _as_bgr(frame)
     dirs = _ray_dirs(p["rays"])
     c = tuple(float(v) for v in circle)
     rays, peaks = _refit_rays(img, dirs, c, p)
     out, near = _rim(rays, peaks, dirs, c, c, p)
-    return out if near > 0 else None
+    if not near > 0:
+        return None
+    if cov is not None:
+        v = _rims_covariance(rays, peaks, dirs, c, c, p)
+        if v is not None:
+            cov.extend(v)
+    return out
 
 
 def crop(frame, cx, cy, r, bg, p=None):

@@ -64,7 +64,7 @@ RIM_CHECK_PCT = 0.2
 
 # The printed centre, a confident answer's: the localisation's (or that rim's) and the refined
 # centre, each weighed by its covariance. The localisation's comes from its rims
-# (preprocess.rim_covariance); the refined one's is taken as CENTRE_FUSE_PX^2 times the identity,
+# (preprocess.find_sphere's cov, or rim_from's); the refined one's is taken as CENTRE_FUSE_PX^2 times the identity,
 # so c = l + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - l). Where rims lie all round, C is about 0.001-0.004
 # px^2 and the refined centre (0.17 px off at the median) moves the printed one by a few
 # hundredths. Where two opposite arcs have none (a sphere past the frame's edge with the post
@@ -586,10 +586,11 @@ class Refiner:
             from training.preprocess import camera_geometry
             self.focal = camera_geometry(camera)[1]
 
-    def __call__(self, frame, circle, euler, refine_pose=True):
+    def __call__(self, frame, circle, euler, refine_pose=True, cov=None):
         """dict of the result line's members for a frame (undistorted BGR), the circle found
-        (continuous coordinates, the radius + 0.5 as network_estimate gives it) and the network's
-        angles; "circle" as poseinfer prints it (printed_circle)."""
+        (continuous coordinates, the radius + 0.5 as network_estimate gives it), the network's
+        angles and the found centre's covariance (network_estimate's; None: none); "circle" as
+        poseinfer prints it (printed_circle)."""
         R0 = euler_to_matrix(euler)
         if self.texture is None:
             return {"x": euler[0], "y": euler[1], "z": euler[2], "circle": self.printed_circle(frame, circle)}
@@ -604,15 +605,16 @@ class Refiner:
                "residual": res.residual, "colour": res.colour, "moved": moved}
         if note:
             out["note"] = note
-        out["circle"] = self.printed_circle(frame, circle, res.circle if refine_pose and ok else None)
+        out["circle"] = self.printed_circle(frame, circle, res.circle if refine_pose and ok else None, cov)
         return out
 
-    def printed_circle(self, frame, circle, refined=None):
+    def printed_circle(self, frame, circle, refined=None, cov=None):
         """The sphere's circle as poseinfer prints it, continuous coordinates: the localisation's
         (circle as __call__ takes it), or, when a confident answer's refined circle (`refined`)
         has a radius more than RIM_CHECK_PCT percent off it, the rim found from the refined
-        circle (sphere-crop-v2 models; the localisation's when rim_from finds none); for a
-        confident answer its centre weighed against the refined centre (fused_centre)."""
+        circle (sphere-crop-v2 models; the localisation's when rim_from finds none). A confident
+        answer's centre is then weighed against the refined centre (fused_centre) by that circle's
+        covariance: the localisation's (cov, network_estimate's) or the rim's."""
         from training import preprocess as pp
         found = [circle[0], circle[1], circle[2] - 0.5]
         if refined is None:
@@ -624,16 +626,19 @@ class Refiner:
             return found
         c = (found[0] - 0.5, found[1] - 0.5, found[2])  # OpenCV's pixel centres
         if 100.0 * abs(refined[2] / found[2] - 1.0) > RIM_CHECK_PCT:
-            rim = pp.rim_from(frame, (refined[0] - 0.5, refined[1] - 0.5, refined[2]), p)
-            c = c if rim is None else rim
-        cov = pp.rim_covariance(frame, c, p)
-        x, y = (c[0], c[1]) if cov is None else fused_centre(c, cov, (refined[0] - 0.5, refined[1] - 0.5))
+            rim_cov = []
+            rim = pp.rim_from(frame, (refined[0] - 0.5, refined[1] - 0.5, refined[2]), p, rim_cov)
+            if rim is not None:
+                c, cov = rim, rim_cov
+        if not cov:
+            return [c[0] + 0.5, c[1] + 0.5, c[2]]
+        x, y = fused_centre(c, cov, (refined[0] - 0.5, refined[1] - 0.5))
         return [x + 0.5, y + 0.5, c[2]]
 
 
 def fused_centre(c, cov, f):
     """The centre c = (x, y) weighed against the refined centre f by c's covariance cov = (cxx,
-    cxy, cyy) (preprocess.rim_covariance) and CENTRE_FUSE_PX (the refined centre's):
+    cxy, cyy) (preprocess.find_sphere's or rim_from's cov) and CENTRE_FUSE_PX (the refined centre's):
     c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c)."""
     t2 = CENTRE_FUSE_PX * CENTRE_FUSE_PX
     cxx, cxy, cyy = cov
@@ -645,17 +650,19 @@ def fused_centre(c, cov, f):
 
 
 def network_estimate(sess, meta, frame, camera=None, model="the model"):
-    """(undistorted frame, circle in continuous coordinates, network angles) for a BGR frame;
-    `model` names the model in the error for incomplete preprocessing metadata."""
+    """(undistorted frame, circle in continuous coordinates, network angles, the circle's centre's
+    covariance from its rims or None) for a BGR frame; `model` names the model in the error for
+    incomplete preprocessing metadata."""
     from training import preprocess as pp
     from training.export import run_onnx
     p = pp.params(meta.get("spherepose.preprocess"), model=str(model))
     if camera is not None and p["name"] != pp.NAME_V1:
         frame = pp.undistort(frame, camera)
-    cx, cy, r, bg = pp.find_sphere(frame, p, camera)
+    cov = []
+    cx, cy, r, bg = pp.find_sphere(frame, p, camera, cov=cov)
     x = pp.normalise(pp.crop(frame, cx, cy, r, bg, p), p)
     e = run_onnx(sess, x[None])["euler_deg"][0].astype(np.float64)
-    return frame, (cx + 0.5, cy + 0.5, r + 0.5), tuple(float(v) for v in e)
+    return frame, (cx + 0.5, cy + 0.5, r + 0.5), tuple(float(v) for v in e), (tuple(cov) or None)
 
 
 def _frames(paths):
@@ -787,12 +794,12 @@ def main(argv=None):
             cam = frame_camera(folder_cams, path, frame, camera)
             ref.focal = None if cam is None else camera_geometry(cam)[1]
             try:
-                frame, circle, euler = network_estimate(sess, meta, frame, cam, args.model)
+                frame, circle, euler, cov = network_estimate(sess, meta, frame, cam, args.model)
             except NoSphere as e:
                 print(json.dumps({"file": str(path), "error": str(e)}), flush=True)
                 continue
             if args.cmd == "run":
-                out = {"file": str(path), **ref(frame, circle, euler, not args.no_refine)}
+                out = {"file": str(path), **ref(frame, circle, euler, not args.no_refine, cov)}
                 print(json.dumps(out), flush=True)
             else:
                 # the first pass's residual and colour ratio (unchecked), and the check's swing

@@ -2093,6 +2093,20 @@ static bool centre_covariance(const std::vector<double> &xs, const std::vector<d
     return true;
 }
 
+// The covariance of the centre of circle (cx, cy, r) from its rims on the
+// rays of circle a (preprocess.py _rims_covariance): rims(), refitted as
+// rim() refits them, centre_covariance(). False with fewer than 8 rims, or as
+// centre_covariance.
+static bool rims_covariance(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+                            const Rays &rays, double cx, double cy, double r, double cov[3])
+{
+    thread_local std::vector<double> xs, ys;
+    double x, y, rr;
+    if (!rims(dirs, p, a, rays, cx, cy, r, xs, ys, &rr)) return false;
+    through_rims(xs, ys, p, &x, &y, &rr);
+    return centre_covariance(xs, ys, x, y, rr, p, cov);
+}
+
 // The last step from circle a (preprocess.py _last_step), from its support's
 // rays: refitted through the outermost edges near it (outermost, to 2
 // inlier_px outside), then that circle moved to the rim (rim). Returns rim's
@@ -2699,7 +2713,7 @@ static double expected_radius(const pp_camera *cam)
 }
 
 int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *ocx,
-                double *ocy, double *orad, char *err, size_t errlen)
+                double *ocy, double *orad, double *cov, char *err, size_t errlen)
 {
     double rmin, rmax;
     if (p->cam.set) {
@@ -2840,11 +2854,15 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // refitted through the outermost edges near it, then moved to the rims and through them,
     // and from the wider band's circle too when weakly supported
     final_circle(f, dirs, p, sp, bank[fits[(size_t)ia]], &bank[all.size()], ocx, ocy, orad);
+    // its centre's covariance, from its rims on the fit's rays (the refinement weighs it against
+    // the refined centre: refine.h RF_CENTRE_FUSE_PX)
+    if (cov && !rims_covariance(dirs, p, sp, bank[fits[(size_t)ia]], *ocx, *ocy, *orad, cov))
+        cov[0] = cov[1] = cov[2] = std::nan("");
     return 0;
 }
 
 int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
-             double cy, double r, double *ocx, double *ocy, double *orad)
+             double cy, double r, double *ocx, double *ocy, double *orad, double *cov)
 {
     thread_local std::vector<double> dirs;
     if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
@@ -2852,22 +2870,10 @@ int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p
     const Frame f = {bgr, stride, w, h};
     // the circle's support rays (the support itself decides nothing here)
     const Found a = {cx, cy, r, support(f, dirs, cx, cy, r, p, &rays)};
-    return rim(dirs, p, a, rays, cx, cy, r, ocx, ocy, orad) > 0 ? 0 : -1;
-}
-
-int rim_covariance(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
-                   double cy, double r, double cov[3])
-{
-    thread_local std::vector<double> dirs, xs, ys;
-    if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
-    thread_local Rays rays;
-    const Frame f = {bgr, stride, w, h};
-    // the circle's support rays (the support itself decides nothing here)
-    const Found a = {cx, cy, r, support(f, dirs, cx, cy, r, p, &rays)};
-    double x, y, rr;
-    if (!rims(dirs, p, a, rays, cx, cy, r, xs, ys, &rr)) return -1;
-    through_rims(xs, ys, p, &x, &y, &rr);
-    return centre_covariance(xs, ys, x, y, rr, p, cov) ? 0 : -1;
+    if (rim(dirs, p, a, rays, cx, cy, r, ocx, ocy, orad) == 0) return -1;
+    if (cov && !rims_covariance(dirs, p, a, rays, cx, cy, r, cov))
+        cov[0] = cov[1] = cov[2] = std::nan("");
+    return 0;
 }
 
 void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r,

@@ -19,22 +19,19 @@ namespace crop2
 // The circle of the sphere in a BGR frame (OpenCV pixel coordinates: pixel
 // centres at integers). Returns 0, or -1 with err ("no sphere found in
 // frame", "two spheres in frame (...)", "sphere cut by the frame edge (...)").
+// cov (when not null): the covariance of the centre from its rims, (cxx, cxy,
+// cyy) in px^2 (preprocess.py find_sphere's cov), NaN when there is none.
 int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *cx,
-                double *cy, double *r, char *err, size_t errlen);
+                double *cy, double *r, double *cov, char *err, size_t errlen);
 
 // The sphere's rim found from a circle measured another way, the
 // refinement's (preprocess.py rim_from): on each of the circle's support rays
 // the step peak nearest it, moved to its outer half-maximum, and the circle
 // refitted through those rims. Returns 0, or -1 with fewer than 8 rims or
-// none of them near the refitted circle.
+// none of them near the refitted circle. cov (when not null): the covariance
+// of the result's centre from those rims, as find_sphere's.
 int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
-             double cy, double r, double *ocx, double *ocy, double *orad);
-
-// The covariance of the centre of the sphere's rim found from a circle, as
-// rim_from finds it (preprocess.py rim_covariance): cov = (cxx, cxy, cyy) in
-// px^2. Returns 0, or -1 with fewer than 8 rims or no inverse.
-int rim_covariance(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
-                   double cy, double r, double cov[3]);
+             double cy, double r, double *ocx, double *ocy, double *orad, double *cov);
 
 // Crop (steps after the circle): the square of side 2 r margin around it,
 // outside the frame `fill`, reduced to size x size (INTER_AREA), every output

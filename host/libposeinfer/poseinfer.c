@@ -46,6 +46,7 @@ struct pi_ctx {
     char **meta_keys, **meta_vals;
     shim_mat *mat;          /* decoded frame of the last pi_infer_file/memory */
     shim_mat *und;          /* the last frame undistorted (a camera with distortion) */
+    double loc_cov[3];      /* the last localisation's centre covariance (pp_circle cov) */
     unsigned char *filebuf; /* reused read buffer */
     size_t filecap;
     size_t frame_bytes; /* size of the pixels held in mat */
@@ -714,6 +715,7 @@ static int preprocess(pi_ctx *ctx, const pi_frame *frame, float *out, size_t n, 
     res->circle[1] = c.cy + 0.5;
     res->circle[2] = c.r;
     res->locate_ms = c.locate_ms;
+    memcpy(ctx->loc_cov, c.cov, sizeof ctx->loc_cov);
     res->preprocess_ms = pi_now_ms() - t0;
     return 0;
 }
@@ -799,24 +801,26 @@ fail:
  * the localisation's circle is likely off, and the rim found from the refined
  * circle is the sphere's (the localisation's stands when shim_rim_from finds
  * no rim or fails). That circle's centre is then weighed against the refined
- * centre by its rims' covariance (rf_fused_centre; unchanged when
- * shim_rim_covariance has none). sphere-crop-v2 only. */
+ * centre by its rims' covariance (rf_fused_centre): the localisation's
+ * (ctx->loc_cov) or the rim's; unchanged when there is none (NaN).
+ * sphere-crop-v2 only. */
 static void printed_circle(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
 {
     char rerr[PI_ERR_LEN];
     double cx = res->cx, cy = res->cy, r = res->r, cov[3];
     if (ctx->pp.version != 2) return;
+    memcpy(cov, ctx->loc_cov, sizeof cov);
     if (100.0 * fabs(res->rr / res->r - 1.0) > RF_RIM_CHECK_PCT) {
-        double rx, ry, rrad;
+        double rx, ry, rrad, rcov[3];
         if (shim_rim_from(frame, &ctx->pp, res->rcx - 0.5, res->rcy - 0.5, res->rr, &rx, &ry, &rrad,
-                          rerr) == 0) {
+                          rcov, rerr) == 0) {
             cx = rx;
             cy = ry;
             r = rrad;
+            memcpy(cov, rcov, sizeof cov);
         }
     }
-    if (shim_rim_covariance(frame, &ctx->pp, cx, cy, r, cov, rerr) == 0)
-        rf_fused_centre(cx, cy, cov, res->rcx - 0.5, res->rcy - 0.5, &cx, &cy);
+    if (!isnan(cov[0])) rf_fused_centre(cx, cy, cov, res->rcx - 0.5, res->rcy - 0.5, &cx, &cy);
     res->circle[0] = cx + 0.5;
     res->circle[1] = cy + 0.5;
     res->circle[2] = r;

@@ -333,8 +333,8 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
     double cx, cy, r;
     char why[200];
     const double t0 = pi_now_ms();
-    if (crop2::find_sphere(bgr->data, bgr->cols, bgr->rows, bgr->step[0], p, &cx, &cy, &r, why,
-                           sizeof why) < 0) {
+    if (crop2::find_sphere(bgr->data, bgr->cols, bgr->rows, bgr->step[0], p, &cx, &cy, &r,
+                           circ->cov, why, sizeof why) < 0) {
         seterr(err, "preprocess", why);
         return -1;
     }
@@ -354,24 +354,12 @@ static int preprocess_v2(const cv::Mat &bgr0, const pp_params *p, float *out, pp
 }
 
 extern "C" int shim_rim_from(const pi_frame *f, const pp_params *p, double cx, double cy, double r,
-                             double *ocx, double *ocy, double *orad, char *err)
+                             double *ocx, double *ocy, double *orad, double *cov, char *err)
 {
     try {
         const cv::Mat bgr = bgr_of(f);
         return crop2::rim_from(bgr.data, bgr.cols, bgr.rows, bgr.step[0], p, cx, cy, r, ocx, ocy,
-                               orad) < 0;
-    }
-    SHIM_CATCH("rim")
-    return -1;
-}
-
-extern "C" int shim_rim_covariance(const pi_frame *f, const pp_params *p, double cx, double cy,
-                                   double r, double cov[3], char *err)
-{
-    try {
-        const cv::Mat bgr = bgr_of(f);
-        return crop2::rim_covariance(bgr.data, bgr.cols, bgr.rows, bgr.step[0], p, cx, cy, r, cov) <
-               0;
+                               orad, cov) < 0;
     }
     SHIM_CATCH("rim")
     return -1;

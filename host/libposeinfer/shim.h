@@ -50,6 +50,8 @@ typedef struct pp_circle {
     double cx, cy, r;
     double bg[3];
     double locate_ms; /* sphere-crop-v2: time finding the circle alone (pi_now_ms), else 0 */
+    double cov[3];    /* sphere-crop-v2: the centre's covariance from its rims (crop2.h
+                         find_sphere), px^2; NaN when none; v1 leaves it */
 } pp_circle;
 
 /* The v2 parameters from the metadata object (pp_v2.c): every key present,
@@ -98,18 +100,12 @@ int shim_preprocess_seen(const pi_frame *f, const pp_params *p, float *out, pp_c
 
 /* sphere-crop-v2: the sphere's rim found from a circle measured another way
  * (crop2.h rim_from), in a frame as *seen gives it (1, 3 or 4 channels);
- * circle and result in OpenCV pixel coordinates. Returns 0, 1 when fewer
- * than 8 rims were found or none lies near the refitted circle (the circle
- * stands), -1 with err (out of memory). */
+ * circle and result in OpenCV pixel coordinates; cov (3, when not null) its
+ * centre's covariance, NaN when none. Returns 0, 1 when fewer than 8 rims
+ * were found or none lies near the refitted circle (the circle stands), -1
+ * with err (out of memory). */
 int shim_rim_from(const pi_frame *f, const pp_params *p, double cx, double cy, double r,
-                  double *ocx, double *ocy, double *orad, char *err);
-
-/* sphere-crop-v2: the covariance (cxx, cxy, cyy, px^2) of the centre of the
- * sphere's rim found from a circle (crop2.h rim_covariance), in a frame as
- * *seen gives it. Returns 0, 1 with fewer than 8 rims or no inverse, -1 with
- * err (out of memory). */
-int shim_rim_covariance(const pi_frame *f, const pp_params *p, double cx, double cy, double r,
-                        double cov[3], char *err);
+                  double *ocx, double *ocy, double *orad, double *cov, char *err);
 
 /* Write a frame to an image file (format from the extension). */
 int shim_save(const pi_frame *f, const char *path, char *err);

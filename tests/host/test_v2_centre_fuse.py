@@ -1,5 +1,5 @@
 """The printed centre weighed against the refined centre (training/refine.py CENTRE_FUSE_PX,
-fused_centre; preprocess.rim_covariance; docs/refine.md step 9).
+fused_centre; preprocess.find_sphere's cov; docs/refine.md step 9).
 
 - `edge` seed 508 frames 40 and 43 and seed 501 frame 33: the sphere 2-7 px past the bottom or top
   edge of the frame, with the post below. Few rims lie above and below, so the localisation holds
@@ -65,21 +65,18 @@ def test_printed_centre_in_c_and_python(frames, tmp_path, poseinfer, timeout_sca
     meta = read_metadata(MODEL)
     sess = onnx_session(MODEL, 1)
     ref = rf.Refiner(meta, CAMERA)
-    p = params()
     for (path, truth), line in zip(frames, lines):
         assert line["confident"] is True, line
         # the localisation's centre is off along the loose axis (what this guards)
         found = (line["cx"], line["cy"], line["r"])
         ec, _ = circle_error(found, truth)
         assert ec > 0.5, (path.name, ec)
-        und = pp.undistort(cv2.imread(str(path)), CAMERA)
-        cov = pp.rim_covariance(und, found, p)
-        assert cov[2] > 1.5 * cov[0], (path.name, cov)  # few rims above and below: y is loose
         c = line["circle"]
         ec, er = circle_error((c[0] - 0.5, c[1] - 0.5, c[2]), truth)
         assert ec <= 0.4 and er <= 0.5, (path.name, ec, er)
         assert c[2] == pytest.approx(found[2], abs=0.01)  # the radius is the localisation's
         # the Python reference, from the C side's network angles
-        und, circle, _ = rf.network_estimate(sess, meta, cv2.imread(str(path)), CAMERA)
-        py = ref(und, circle, tuple(line["net"]))
+        und, circle, _, cov = rf.network_estimate(sess, meta, cv2.imread(str(path)), CAMERA)
+        assert cov[2] > 1.5 * cov[0], (path.name, cov)  # few rims above and below: y is loose
+        py = ref(und, circle, tuple(line["net"]), cov=cov)
         assert np.abs(np.array(py["circle"]) - c).max() < 2e-3, (path.name, py["circle"], c)

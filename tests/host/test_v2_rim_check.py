@@ -55,7 +55,7 @@ def test_printed_circle_is_the_rim_in_c_and_python(frames, tmp_path, poseinfer, 
         ec, er = circle_error((c[0] - 0.5, c[1] - 0.5, c[2]), truth)
         assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
         # the Python reference, from the C side's network angles
-        und, circle, _ = rf.network_estimate(sess, meta, cv2.imread(str(path)), CAMERA)
-        py = ref(und, circle, tuple(line["net"]))
+        und, circle, _, cov = rf.network_estimate(sess, meta, cv2.imread(str(path)), CAMERA)
+        py = ref(und, circle, tuple(line["net"]), cov=cov)
         assert py["confident"] is True, py
         assert np.abs(np.array(py["circle"]) - c).max() < 2e-3, (path.name, py["circle"], c)

@@ -345,10 +345,10 @@ def test_c_agrees_with_python(tmp_path, texture):
     ref = rf.Refiner(meta)
     for p, c in zip(frames, lines):
         frame = cv2.imread(str(p))
-        _, circle, euler = rf.network_estimate(sess, meta, frame)
+        _, circle, euler, cov = rf.network_estimate(sess, meta, frame)
         assert np.abs(np.array(c["net"]) - euler).max() < 0.01
         # from the C side's network angles, so that only refinement is compared
-        py = ref(frame, circle, tuple(c["net"]))
+        py = ref(frame, circle, tuple(c["net"]), cov=cov)
         R_c = rf.euler_to_matrix((c["x"], c["y"], c["z"]))
         R_p = rf.euler_to_matrix((py["x"], py["y"], py["z"]))
         assert geodesic_deg(R_c, R_p) < 0.005, (p.name, c, py)

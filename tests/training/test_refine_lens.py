@@ -62,14 +62,14 @@ def test_c_agrees_with_python_through_a_lens(tmp_path):
     as_read = []
     for p, c in zip(frames, lines):
         frame = cv2.imread(str(p))
-        und, circle, euler = rf.network_estimate(sess, meta, frame, camera)
+        und, circle, euler, cov = rf.network_estimate(sess, meta, frame, camera)
         assert np.abs(np.array(c["net"]) - euler).max() < 0.01
         # the circle found is (cx + 0.5, cy + 0.5, r) (--timings, 2 decimals); refinement starts
         # from r + 0.5
         found = np.array([c["cx"] + 0.5, c["cy"] + 0.5, c["r"] + 0.5])
         assert np.abs(found - circle).max() < 0.006, (p.name, c, circle)
         # from the C side's network angles, so that only refinement is compared
-        py = ref(und, circle, tuple(c["net"]))
+        py = ref(und, circle, tuple(c["net"]), cov=cov)
         assert geodesic_deg((c["x"], c["y"], c["z"]), (py["x"], py["y"], py["z"])) < 0.005, (p.name, c, py)
         assert c["residual"] == pytest.approx(py["residual"], abs=2e-5)
         assert c["confident"] == py["confident"]

@@ -90,8 +90,8 @@ static int find(const cv::Mat &m, const pp_params *p, double *cx, double *cy, do
                 std::string *why)
 {
     char err[256] = "";
-    const int rc =
-        crop2::find_sphere(m.data, m.cols, m.rows, m.step[0], p, cx, cy, r, err, sizeof err);
+    const int rc = crop2::find_sphere(m.data, m.cols, m.rows, m.step[0], p, cx, cy, r, nullptr, err,
+                                      sizeof err);
     *why = err;
     return rc;
 }
