@@ -74,7 +74,8 @@ typedef struct pi_result {
     double circle[3]; /* the sphere's circle as printed, continuous pixel coordinates: the
                          one found (cx + 0.5, cy + 0.5, r), or the rim found from the refined
                          circle when a confident answer's refined radius differs from r by
-                         more than RIM_CHECK_PCT % (docs/refine.md) */
+                         more than RIM_CHECK_PCT %; a confident answer's centre weighed
+                         against the refined centre (docs/refine.md, steps 8 and 9) */
 } pi_result;
 
 /* A raw 8-bit frame. channels: 1 (gray), 3 (BGR) or 4 (BGRA); stride in bytes
