@@ -62,12 +62,12 @@ CHECK_DEG = 2.5       # ... or the pose farther from the network's than this, an
 # refinement".
 RIM_CHECK_PCT = 0.2
 
-# The printed centre, a confident answer's: the localisation's (or that rim's) and the refined
-# centre, each weighed by its covariance. The localisation's comes from its rims
-# (preprocess.find_sphere's cov, or rim_from's); the refined one's is taken as CENTRE_FUSE_PX^2 times the identity,
-# so c = l + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - l). Where rims lie all round, C is about 0.001-0.004
-# px^2 and the refined centre (0.17 px off at the median) moves the printed one by a few
-# hundredths. Where two opposite arcs have none (a sphere past the frame's edge with the post
+# The printed centre, a confident answer's: the centre c of the localisation's circle (or of
+# that rim's) and the refined centre f, each weighed by its covariance. c's, C, comes from its
+# rims (preprocess.find_sphere's cov, or rim_from's); f's is taken as CENTRE_FUSE_PX^2 times the
+# identity, so the printed centre is c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c). Where rims lie all
+# round, C is about 0.001-0.004 px^2 and the refined centre (0.17 px off at the median) moves the
+# printed one by a few hundredths. Where two opposite arcs have none (a sphere past the frame's edge with the post
 # below), C is large along that axis, and the refined centre, which the whole texture holds, leads
 # there. The rims' errors are correlated, so C understates them. CENTRE_FUSE_PX is therefore
 # smaller than the refined centre's own scatter: it was chosen among 0.06-0.14 on 5 998 development
@@ -630,9 +630,10 @@ class Refiner:
             rim = pp.rim_from(frame, (refined[0] - 0.5, refined[1] - 0.5, refined[2]), p, rim_cov)
             if rim is not None:
                 c, cov = rim, rim_cov
-        if not cov:
+        f = (refined[0] - 0.5, refined[1] - 0.5)
+        if cov is None or len(cov) != 3 or not all(math.isfinite(v) for v in (*cov, *f)):
             return [c[0] + 0.5, c[1] + 0.5, c[2]]
-        x, y = fused_centre(c, cov, (refined[0] - 0.5, refined[1] - 0.5))
+        x, y = fused_centre(c, cov, f)
         return [x + 0.5, y + 0.5, c[2]]
 
 

@@ -802,7 +802,8 @@ fail:
  * circle is the sphere's (the localisation's stands when shim_rim_from finds
  * no rim or fails). That circle's centre is then weighed against the refined
  * centre by its rims' covariance (rf_fused_centre): the localisation's
- * (ctx->loc_cov) or the rim's; unchanged when there is none (NaN).
+ * (ctx->loc_cov) or the rim's; unchanged when there is none (NaN) or it or
+ * the refined centre is not finite.
  * sphere-crop-v2 only. */
 static void printed_circle(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
 {
@@ -820,7 +821,9 @@ static void printed_circle(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
             memcpy(cov, rcov, sizeof cov);
         }
     }
-    if (!isnan(cov[0])) rf_fused_centre(cx, cy, cov, res->rcx - 0.5, res->rcy - 0.5, &cx, &cy);
+    if (isfinite(cov[0]) && isfinite(cov[1]) && isfinite(cov[2]) && isfinite(res->rcx) &&
+        isfinite(res->rcy))
+        rf_fused_centre(cx, cy, cov, res->rcx - 0.5, res->rcy - 0.5, &cx, &cy);
     res->circle[0] = cx + 0.5;
     res->circle[1] = cy + 0.5;
     res->circle[2] = r;

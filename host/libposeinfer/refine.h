@@ -88,9 +88,10 @@ int rf_refine(const rf_texture *t, rf_work *w, const rf_image *frame, double cx,
 #define RF_RIM_CHECK_PCT 0.2
 
 /* The printed centre, a confident answer's (training/refine.py
- * CENTRE_FUSE_PX, fused_centre): the localisation's (or that rim's) weighed
- * against the refined centre, c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c), C the
- * covariance of c (cxx, cxy, cyy: crop2 rim_covariance). */
+ * CENTRE_FUSE_PX, fused_centre): the localisation's (or that rim's) c weighed
+ * against the refined centre f, c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c), C
+ * the covariance of c (cxx, cxy, cyy: crop2 find_sphere's or rim_from's
+ * cov). */
 #define RF_CENTRE_FUSE_PX 0.1
 void rf_fused_centre(double cx, double cy, const double cov[3], double fx, double fy, double *ox,
                      double *oy);
