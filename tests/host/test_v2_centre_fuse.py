@@ -10,14 +10,12 @@ fused_centre; preprocess.find_sphere's cov; docs/refine.md step 9).
 The C runtime prints the centre the Python reference prints (`python -m training.refine run`)."""
 import math
 
-import cv2
 import numpy as np
 import pytest
 
 from training import preprocess as pp
 from training import refine as rf
-from training.export import onnx_session, read_metadata
-from v2_raycast_cases import CAMERA, MODEL, circle_error, params, poseinfer_lines, render_seeded
+from v2_raycast_cases import circle_error, params, poseinfer_lines, python_results, render_seeded
 
 CASES = [(("edge", 40, "-21.039_6.094_21.457.png"), 508),
          (("edge", 43, "-28.1_21.028_-0.591.png"), 508),
@@ -62,10 +60,8 @@ def test_fused_centre_leans_where_the_rims_are_loose():
 def test_printed_centre_in_c_and_python(frames, tmp_path, poseinfer, timeout_scale):
     lines = poseinfer_lines(poseinfer, [path for path, _ in frames], tmp_path, ("--timings",),
                             timeout_scale)
-    meta = read_metadata(MODEL)
-    sess = onnx_session(MODEL, 1)
-    ref = rf.Refiner(meta, CAMERA)
-    for (path, truth), line in zip(frames, lines):
+    pys = python_results([path for path, _ in frames], lines)
+    for (path, truth), line, (py, cov) in zip(frames, lines, pys):
         assert line["confident"] is True, line
         # the localisation's centre is off along the loose axis (what this guards)
         found = (line["cx"], line["cy"], line["r"])
@@ -75,8 +71,6 @@ def test_printed_centre_in_c_and_python(frames, tmp_path, poseinfer, timeout_sca
         ec, er = circle_error((c[0] - 0.5, c[1] - 0.5, c[2]), truth)
         assert ec <= 0.4 and er <= 0.5, (path.name, ec, er)
         assert c[2] == pytest.approx(found[2], abs=0.01)  # the radius is the localisation's
-        # the Python reference, from the C side's network angles
-        und, circle, _, cov = rf.network_estimate(sess, meta, cv2.imread(str(path)), CAMERA)
         assert cov[2] > 1.5 * cov[0], (path.name, cov)  # few rims above and below: y is loose
-        py = ref(und, circle, tuple(line["net"]), cov=cov)
+        # the Python reference, from the C side's network angles
         assert np.abs(np.array(py["circle"]) - c).max() < 2e-3, (path.name, py["circle"], c)

@@ -15,7 +15,8 @@ import cv2
 from sim.camera import REFERENCE as CAMERA
 from textures.generate import render as texture_rgb, write_png_atomic
 from training import preprocess as pp
-from training.export import read_metadata
+from training import refine as rf
+from training.export import onnx_session, read_metadata
 
 REPO = Path(__file__).resolve().parents[2]
 MODEL = REPO / "training" / "models" / "Texture_3_color.onnx"
@@ -131,3 +132,17 @@ def assert_same_circles_in_c(poseinfer, paths, tmp_path, timeout_scale=1.0):
     for path, line in zip(paths, lines):
         cx, cy, r, _ = pp.find_sphere(cv2.imread(str(path), cv2.IMREAD_COLOR), p, CAMERA)
         assert line["circle"] == [round(cx + 0.5, 3), round(cy + 0.5, 3), round(r, 3)], (path.name, line)
+
+
+def python_results(paths, lines):
+    """The Python reference's result line (training/refine.py Refiner, with the localisation's
+    covariance) for each frame, from the C side's network angles (poseinfer_lines' `net`, run
+    with --timings), so that only refinement and the printed circle are compared."""
+    meta = read_metadata(MODEL)
+    sess = onnx_session(MODEL, 1)
+    ref = rf.Refiner(meta, CAMERA)
+    out = []
+    for path, line in zip(paths, lines):
+        und, circle, _, cov = rf.network_estimate(sess, meta, cv2.imread(str(path)), CAMERA)
+        out.append((ref(und, circle, tuple(line["net"]), cov=cov), cov))
+    return out
