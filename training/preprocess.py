@@ -1163,7 +1163,7 @@ def _outermost(rays, peaks, dirs, fit, p, out=2.0):
     return cx + x, cy + y, nr
 
 
-def _rim(rays, peaks, dirs, fit, new, p):
+def _rim(rays, peaks, dirs, fit, new, p, cov=None):
     """The refitted circle `new` moved to the rim, from its steepest colour steps: where the limb
     darkens towards the rim (shading, under blur and anti-aliasing), the largest step along a ray
     lies up to a pixel inside the outline, while the step's outer flank stays anchored to it.
@@ -1179,13 +1179,19 @@ def _rim(rays, peaks, dirs, fit, new, p):
     centre fitted through them leans away from that arc; the rims do not (measured in
     docs/bench/localise.md, "The circle refitted through the rims"). Fewer than 8 rims: the new
     circle unchanged. Returns ((cx, cy, r), near): near, how many rims lie within RIM_NEAR
-    inlier_px of that circle (0 with fewer than 8), judges it against another (_final_circle)."""
+    inlier_px of that circle (0 with fewer than 8), judges it against another (_final_circle). A
+    list `cov` gets the refitted centre's covariance from the rims (_centre_covariance), when
+    there is one."""
     nx, ny, nr = new
     rims = _rims(rays, peaks, dirs, fit, new, p)
     if rims is None:
         return (nx, ny, nr), 0
     xs, ys, r0 = rims
     x, y, r = _through_rims(xs, ys, r0, p)
+    if cov is not None:
+        v = _centre_covariance(xs, ys, x, y, r, p)
+        if v is not None:
+            cov.extend(v)
     tol = RIM_NEAR * p["inlier_px"]
     near = sum(1 for ex, ey in zip(xs, ys)
                if abs(math.sqrt((ex - x) * (ex - x) + (ey - y) * (ey - y)) - r) <= tol)
@@ -1241,18 +1247,6 @@ def _rims(rays, peaks, dirs, fit, new, p):
             ys.append(ey)
             off.append(math.sqrt(ex * ex + ey * ey) - nr)
     return xs, ys, nr + _median(off)
-
-
-def _rims_covariance(rays, peaks, dirs, fit, c, p):
-    """The covariance of the centre of circle c (_centre_covariance) from its rims (_rims) on the
-    rays of circle `fit` (rays, peaks: _refit_rays of fit), refitted as _rim refits them; None
-    with fewer than 8 rims, or as _centre_covariance."""
-    rims = _rims(rays, peaks, dirs, fit, c[:3], p)
-    if rims is None:
-        return None
-    xs, ys, r0 = rims
-    x, y, r = _through_rims(xs, ys, r0, p)
-    return _centre_covariance(xs, ys, x, y, r, p)
 
 
 def _centre_covariance(xs, ys, x, y, r, p):
@@ -1763,9 +1757,7 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
     if cov_out is not None:
         # its centre's covariance, from its rims on the fit's rays (the refinement weighs it
         # against the refined centre: training/refine.py CENTRE_FUSE_PX)
-        cov = _rims_covariance(*_refit_rays(frame, dirs, a, p), dirs, a, c, p)
-        if cov is not None:
-            cov_out.extend(cov)
+        _rim(*_refit_rays(frame, dirs, a, p), dirs, a, c, p, cov_out)
     return c
 
 
@@ -1837,13 +1829,12 @@ def rim_from(frame, circle, p=None, cov=None):
     dirs = _ray_dirs(p["rays"])
     c = tuple(float(v) for v in circle)
     rays, peaks = _refit_rays(img, dirs, c, p)
-    out, near = _rim(rays, peaks, dirs, c, c, p)
+    v = []
+    out, near = _rim(rays, peaks, dirs, c, c, p, v)
     if not near > 0:
         return None
     if cov is not None:
-        v = _rims_covariance(rays, peaks, dirs, c, c, p)
-        if v is not None:
-            cov.extend(v)
+        cov.extend(v)
     return out
 
 

@@ -2019,33 +2019,6 @@ static bool rims(const std::vector<double> &dirs, const pp_params *p, const Foun
     return true;
 }
 
-// The circle (nx, ny, nr) moved to the rim (preprocess.py _rim): refitted
-// through its rims (rims(); through_rims: the steps lean inwards where the
-// limb darkens to the backdrop's level, the rims do not). Returns how many
-// rims lie within rim_near inlier_px of the circle (0 with fewer than 8
-// rims: the circle unchanged).
-static int rim(const std::vector<double> &dirs, const pp_params *p, const Found &a,
-               const Rays &rays, double nx, double ny, double nr, double *ocx, double *ocy,
-               double *orad)
-{
-    thread_local std::vector<double> xs, ys, w;
-    *ocx = nx;
-    *ocy = ny;
-    *orad = nr;
-    double x, y, r;
-    if (!rims(dirs, p, a, rays, nx, ny, nr, xs, ys, &r)) return 0;
-    through_rims(xs, ys, p, &x, &y, &r);
-    *ocx = nx + x;
-    *ocy = ny + y;
-    *orad = r;
-    // the rims near it
-    w.resize(xs.size());
-    residuals(xs.data(), ys.data(), xs.size(), x, y, r, w.data());
-    int near = 0;
-    for (double v : w) near += std::fabs(v) <= rim_near * p->inlier_px;
-    return near;
-}
-
 // The covariance of the centre of circle (x, y, r) fitted through the rims
 // (xs, ys) (preprocess.py _centre_covariance): s2 times the centre's block of
 // (J^T W J)^-1, J each rim's residual's derivatives by x, y, r, W the Tukey
@@ -2093,18 +2066,34 @@ static bool centre_covariance(const std::vector<double> &xs, const std::vector<d
     return true;
 }
 
-// The covariance of the centre of circle (cx, cy, r) from its rims on the
-// rays of circle a (preprocess.py _rims_covariance): rims(), refitted as
-// rim() refits them, centre_covariance(). False with fewer than 8 rims, or as
-// centre_covariance.
-static bool rims_covariance(const std::vector<double> &dirs, const pp_params *p, const Found &a,
-                            const Rays &rays, double cx, double cy, double r, double cov[3])
+// The circle (nx, ny, nr) moved to the rim (preprocess.py _rim): refitted
+// through its rims (rims(); through_rims: the steps lean inwards where the
+// limb darkens to the backdrop's level, the rims do not). Returns how many
+// rims lie within rim_near inlier_px of the circle (0 with fewer than 8
+// rims: the circle unchanged). cov (when not null): the refitted centre's
+// covariance from the rims (centre_covariance), NaN when there is none.
+static int rim(const std::vector<double> &dirs, const pp_params *p, const Found &a,
+               const Rays &rays, double nx, double ny, double nr, double *ocx, double *ocy,
+               double *orad, double *cov = nullptr)
 {
-    thread_local std::vector<double> xs, ys;
-    double x, y, rr;
-    if (!rims(dirs, p, a, rays, cx, cy, r, xs, ys, &rr)) return false;
-    through_rims(xs, ys, p, &x, &y, &rr);
-    return centre_covariance(xs, ys, x, y, rr, p, cov);
+    thread_local std::vector<double> xs, ys, w;
+    *ocx = nx;
+    *ocy = ny;
+    *orad = nr;
+    if (cov) cov[0] = cov[1] = cov[2] = std::nan("");
+    double x, y, r;
+    if (!rims(dirs, p, a, rays, nx, ny, nr, xs, ys, &r)) return 0;
+    through_rims(xs, ys, p, &x, &y, &r);
+    if (cov && !centre_covariance(xs, ys, x, y, r, p, cov)) cov[0] = cov[1] = cov[2] = std::nan("");
+    *ocx = nx + x;
+    *ocy = ny + y;
+    *orad = r;
+    // the rims near it
+    w.resize(xs.size());
+    residuals(xs.data(), ys.data(), xs.size(), x, y, r, w.data());
+    int near = 0;
+    for (double v : w) near += std::fabs(v) <= rim_near * p->inlier_px;
+    return near;
 }
 
 // The last step from circle a (preprocess.py _last_step), from its support's
@@ -2856,8 +2845,10 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     final_circle(f, dirs, p, sp, bank[fits[(size_t)ia]], &bank[all.size()], ocx, ocy, orad);
     // its centre's covariance, from its rims on the fit's rays (the refinement weighs it against
     // the refined centre: refine.h RF_CENTRE_FUSE_PX)
-    if (cov && !rims_covariance(dirs, p, sp, bank[fits[(size_t)ia]], *ocx, *ocy, *orad, cov))
-        cov[0] = cov[1] = cov[2] = std::nan("");
+    if (cov) {
+        double x, y, r;
+        rim(dirs, p, sp, bank[fits[(size_t)ia]], *ocx, *ocy, *orad, &x, &y, &r, cov);
+    }
     return 0;
 }
 
@@ -2870,10 +2861,7 @@ int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p
     const Frame f = {bgr, stride, w, h};
     // the circle's support rays (the support itself decides nothing here)
     const Found a = {cx, cy, r, support(f, dirs, cx, cy, r, p, &rays)};
-    if (rim(dirs, p, a, rays, cx, cy, r, ocx, ocy, orad) == 0) return -1;
-    if (cov && !rims_covariance(dirs, p, a, rays, cx, cy, r, cov))
-        cov[0] = cov[1] = cov[2] = std::nan("");
-    return 0;
+    return rim(dirs, p, a, rays, cx, cy, r, ocx, ocy, orad, cov) > 0 ? 0 : -1;
 }
 
 void crop(const uint8_t *bgr, int w, int h, size_t stride, double cx, double cy, double r,
