@@ -67,13 +67,14 @@ RIM_CHECK_PCT = 0.2
 # rims (preprocess.find_sphere's cov, or rim_from's); f's is taken as CENTRE_FUSE_PX^2 times the
 # identity, so the printed centre is c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c). Where rims lie all
 # round, C is about 0.001-0.004 px^2 and the refined centre (0.17 px off at the median) moves the
-# printed one by a few hundredths. Where two opposite arcs have none (a sphere past the frame's edge with the post
-# below), C is large along that axis, and the refined centre, which the whole texture holds, leads
-# there. The rims' errors are correlated, so C understates them. CENTRE_FUSE_PX is therefore
-# smaller than the refined centre's own scatter: it was chosen among 0.06-0.14 on 5 998 development
-# frames of the ray-caster (seeds 475-498), and the centre's p99 moved from 0.32 to 0.27 px and
-# the frames outside 0.5 px from 4 to 2; on 3 597 frames of seeds 499-510 from 0.31 to 0.26 px and
-# from 3 to 0 (docs/bench/localise.md, "The centre weighed against the refined centre").
+# printed one by a few hundredths. Where two opposite arcs have none (a sphere past the frame's
+# edge with the post below), C is large along that axis, and the refined centre, which the whole
+# texture holds, leads there. The rims' errors are correlated, so C understates them.
+# CENTRE_FUSE_PX is therefore smaller than the refined centre's own scatter: it was chosen among
+# 0.06-0.14 on 5 998 development frames of the ray-caster (seeds 475-498), and the centre's p99
+# moved from 0.32 to 0.27 px and the frames outside 0.5 px from 4 to 2; on 3 597 frames of seeds
+# 499-510 from 0.31 to 0.26 px and from 3 to 0 (docs/bench/localise.md, "The centre weighed
+# against the refined centre").
 CENTRE_FUSE_PX = 0.1
 
 
@@ -639,8 +640,8 @@ class Refiner:
 
 def fused_centre(c, cov, f):
     """The centre c = (x, y) weighed against the refined centre f by c's covariance cov = (cxx,
-    cxy, cyy) (preprocess.find_sphere's or rim_from's cov) and CENTRE_FUSE_PX (the refined centre's):
-    c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c)."""
+    cxy, cyy) (preprocess.find_sphere's or rim_from's cov) and CENTRE_FUSE_PX (the refined
+    centre's): c + C (C + CENTRE_FUSE_PX^2 I)^-1 (f - c)."""
     t2 = CENTRE_FUSE_PX * CENTRE_FUSE_PX
     cxx, cxy, cyy = cov
     a, b, d = cxx + t2, cxy, cyy + t2
