@@ -851,7 +851,7 @@ static void refine_result(pi_ctx *ctx, const pi_frame *frame, pi_result *res)
         snprintf(res->note, sizeof res->note, "refinement: out of memory");
         return;
     }
-    rf_euler_to_matrix(res->net, R0);
+    sp_euler_to_matrix(res->net, R0);
     {
         rf_image fi = {frame->data, frame->width, frame->height, frame->channels,
                        frame->stride ? frame->stride : (size_t)frame->width * frame->channels};

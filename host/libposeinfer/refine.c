@@ -268,22 +268,6 @@ static const int rf_strides[RF_LEVELS] = RF_STRIDES_INIT;
 
 /* ---- conversions ------------------------------------------------------------ */
 
-void rf_euler_to_matrix(const double e[3], double R[3][3])
-{
-    const double d = M_PI / 180.0;
-    double cx = cos(e[0] * d), sx = sin(e[0] * d), cy = cos(e[1] * d), sy = sin(e[1] * d);
-    double cz = cos(e[2] * d), sz = sin(e[2] * d);
-    R[0][0] = cz * cy;
-    R[0][1] = cz * sy * sx - sz * cx;
-    R[0][2] = cz * sy * cx + sz * sx;
-    R[1][0] = sz * cy;
-    R[1][1] = sz * sy * sx + cz * cx;
-    R[1][2] = sz * sy * cx - cz * sx;
-    R[2][0] = -sy;
-    R[2][1] = cy * sx;
-    R[2][2] = cy * cx;
-}
-
 void rf_matrix_to_euler(const double R[3][3], double e[3])
 {
     double s = R[2][0] < -1 ? -1 : R[2][0] > 1 ? 1 : R[2][0];

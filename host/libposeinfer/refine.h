@@ -7,6 +7,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "sp_euler.h"
+
 #define RF_META_TEXTURE    "spherepose.texture_png"
 #define RF_META_CONFIDENCE "spherepose.confidence" /* confidence.h reads it */
 
@@ -108,8 +110,8 @@ int rf_refine_checked(const rf_texture *t, rf_work *w, const rf_image *frame, do
                       double converge_max_deg, rf_out *out, double *moved, char *err,
                       size_t errlen);
 
-/* Conventions' conversions (docs/conventions.md). */
-void rf_euler_to_matrix(const double euler_deg[3], double R[3][3]);
+/* Conventions' conversions (docs/conventions.md); Euler angles to R is
+ * sp_euler_to_matrix (sp_euler.h). */
 void rf_matrix_to_euler(const double R[3][3], double euler_deg[3]);
 
 /* Base64 (RFC 4648, no line breaks) to bytes: *out malloc'ed. -1 on bad text. */

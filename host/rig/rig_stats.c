@@ -5,6 +5,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "sp_euler.h"
+
 #define DEG (3.14159265358979323846 / 180.0)
 
 double rig_wrap_deg(double a)
@@ -17,23 +19,6 @@ double rig_wrap_deg(double a)
     return w;
 }
 
-void rig_euler_to_matrix(const double xyz[3], double R[3][3])
-{
-    double cx = cos(xyz[0] * DEG), sx = sin(xyz[0] * DEG);
-    double cy = cos(xyz[1] * DEG), sy = sin(xyz[1] * DEG);
-    double cz = cos(xyz[2] * DEG), sz = sin(xyz[2] * DEG);
-    /* Rz(z) * Ry(y) * Rx(x), multiplied out. */
-    R[0][0] = cz * cy;
-    R[0][1] = cz * sy * sx - sz * cx;
-    R[0][2] = cz * sy * cx + sz * sx;
-    R[1][0] = sz * cy;
-    R[1][1] = sz * sy * sx + cz * cx;
-    R[1][2] = sz * sy * cx - cz * sx;
-    R[2][0] = -sy;
-    R[2][1] = cy * sx;
-    R[2][2] = cy * cx;
-}
-
 void rig_pose_errors(const double pred[3], const double truth[3], double e[3])
 {
     int i;
@@ -44,8 +29,8 @@ double rig_geodesic_deg(const double pred[3], const double truth[3])
 {
     double P[3][3], T[3][3], tr = 0, c;
     int i, k;
-    rig_euler_to_matrix(pred, P);
-    rig_euler_to_matrix(truth, T);
+    sp_euler_to_matrix(pred, P);
+    sp_euler_to_matrix(truth, T);
     /* trace(P^T T) = sum over i,k of P[k][i] * T[k][i] */
     for (i = 0; i < 3; i++)
         for (k = 0; k < 3; k++) tr += P[k][i] * T[k][i];

@@ -6,9 +6,6 @@
 /* Wrap an angle difference to (-180, 180] degrees. */
 double rig_wrap_deg(double a);
 
-/* R = Rz(z) Ry(y) Rx(x), body to world, angles in degrees. */
-void rig_euler_to_matrix(const double xyz[3], double R[3][3]);
-
 /* Per-axis errors e_a = |wrap(pred_a - true_a)|. */
 void rig_pose_errors(const double pred[3], const double truth[3], double e[3]);
 

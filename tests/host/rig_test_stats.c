@@ -17,6 +17,7 @@
 #include "rig_plan.h"
 #include "rig_report.h"
 #include "rig_stats.h"
+#include "sp_euler.h"
 
 static void test_wrap(void **state)
 {
@@ -52,7 +53,7 @@ static void test_matrix_vectors(void **state)
     assert_int_equal(CONV_N_CASES, 7); /* docs/conventions.md, "Test vectors" */
     for (c = 0; c < CONV_N_CASES; c++) {
         double R[3][3];
-        rig_euler_to_matrix(conv_cases[c].pose, R);
+        sp_euler_to_matrix(conv_cases[c].pose, R);
         for (i = 0; i < 3; i++)
             for (k = 0; k < 3; k++) assert_float_equal(R[i][k], conv_cases[c].R[i][k], 1e-8);
     }

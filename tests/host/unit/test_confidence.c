@@ -82,8 +82,8 @@ static void rotation_angle(void **state)
 {
     (void)state;
     double A[3][3], B[3][3], e[3] = {3, -7, 12}, f[3] = {3, -7, 17};
-    rf_euler_to_matrix(e, A);
-    rf_euler_to_matrix(f, B);
+    sp_euler_to_matrix(e, A);
+    sp_euler_to_matrix(f, B);
     assert_true(fabs(rf_rotation_deg(A, B) - 5.0) < 1e-9); /* about the world's z */
     assert_true(rf_rotation_deg(A, A) < 1e-6);
 }
@@ -107,14 +107,14 @@ static void convergence_check(void **state)
     char err[256];
     double pose[3] = {8.0, -14.0, 21.0}, R[3][3], R0[3][3], moved, r = r_true();
     double cx = 322.4, cy = 251.3;
-    rf_euler_to_matrix(pose, R);
+    sp_euler_to_matrix(pose, R);
     uint8_t *img = render(tex, R, cx, cy), *gray = to_gray(img);
     rf_image fi = {img, FW, FH, 3, FW * 3}, gi = {gray, FW, FH, 1, FW};
     rf_out o, o1;
     /* a colour frame from a start the first pass corrects a little: not
      * checked, the answer is the single pass's */
     double near[3] = {pose[0] + 0.4, pose[1] - 0.3, pose[2] + 0.2};
-    rf_euler_to_matrix(near, R0);
+    sp_euler_to_matrix(near, R0);
     assert_int_equal(rf_refine_checked(t, w, &fi, cx + 0.5, cy - 0.4, r, R0, F_PX, 1, 0.3, &o,
                                        &moved, err, sizeof err),
                      0);
@@ -129,14 +129,14 @@ static void convergence_check(void **state)
     /* a gray frame from 7 degrees off (the shipped network's error on a mono
      * camera): checked, refined until a pass moves it at most 0.3 deg */
     double far[3] = {pose[0] - 4.0, pose[1] + 4.0, pose[2] - 4.0};
-    rf_euler_to_matrix(far, R0);
+    sp_euler_to_matrix(far, R0);
     assert_int_equal(
         rf_refine_checked(t, w, &gi, cx, cy, r, R0, F_PX, 1, 0.3, &o, &moved, err, sizeof err), 0);
     printf("  gray, %.1f deg off: %.4f deg off after %d steps, last pass %.4f deg\n",
            rf_rotation_deg(R0, R), rf_rotation_deg(o.R, R), o.iterations, moved);
     assert_true(isnan(o.colour) && moved <= 0.3 && rf_rotation_deg(o.R, R) < 0.1);
     /* a colour frame whose circle was found 6 px off: checked */
-    rf_euler_to_matrix(near, R0);
+    sp_euler_to_matrix(near, R0);
     assert_int_equal(rf_refine_checked(t, w, &fi, cx + 6.0, cy - 2.0, r * 1.03, R0, F_PX, 1, 0.3,
                                        &o, &moved, err, sizeof err),
                      0);

@@ -28,14 +28,14 @@ static void refines_pose_and_circle(void **state)
     const double poses[2][3] = {{6.0, -11.0, 18.5}, {-27.0, 24.0, -4.0}};
     for (int k = 0; k < 2; k++) {
         double R[3][3], R0[3][3], Rp[3][3];
-        rf_euler_to_matrix(poses[k], R);
+        sp_euler_to_matrix(poses[k], R);
         double cx = 327.3 + 5 * k, cy = 248.6;
         uint8_t *img = render(tex, R, cx, cy);
         rf_image fi = {img, FW, FH, 3, FW * 3};
         /* start half a degree off (the network's typical error), the circle
          * 1.5 px and 1 % off */
         double off[3] = {poses[k][0] + 0.4, poses[k][1] - 0.35, poses[k][2] + 0.3};
-        rf_euler_to_matrix(off, R0);
+        sp_euler_to_matrix(off, R0);
         rf_out o;
         double r = r_true();
         assert_int_equal(
@@ -65,7 +65,7 @@ static void refines_pose_and_circle(void **state)
     {
         uint8_t *other = make_texture(99);
         double R[3][3], e[3] = {5, 10, -15};
-        rf_euler_to_matrix(e, R);
+        sp_euler_to_matrix(e, R);
         uint8_t *img = render(other, R, 320, 256);
         rf_image fi = {img, FW, FH, 3, FW * 3};
         rf_out o;
@@ -96,7 +96,7 @@ static void refuses_bad_input(void **state)
     rf_work *w = rf_work_new();
     double R[3][3], e[3] = {0, 0, 0};
     rf_out o;
-    rf_euler_to_matrix(e, R);
+    sp_euler_to_matrix(e, R);
     uint8_t frame[64 * 48 * 3] = {0};
     rf_image fi = {frame, 64, 48, 3, 64 * 3};
     assert_int_equal(rf_refine(t, w, &fi, 500, 500, 30, R, 0, 1, &o, err, sizeof err),
@@ -131,7 +131,7 @@ static void euler_roundtrip(void **state)
     (void)state;
     /* (12, -27, 6) of tests/data/conventions_vectors.json: R[2][0] = sin 27 deg */
     double e[3] = {12, -27, 6}, R[3][3], back[3];
-    rf_euler_to_matrix(e, R);
+    sp_euler_to_matrix(e, R);
     assert_true(fabs(R[2][0] - sin(27 * M_PI / 180)) < 1e-12);
     rf_matrix_to_euler(R, back);
     for (int i = 0; i < 3; i++) assert_true(fabs(back[i] - e[i]) < 1e-9);
@@ -149,8 +149,8 @@ static void frame_layouts_agree(void **state)
     rf_work *w = f->w;
     char err[256];
     double R[3][3], R0[3][3], e[3] = {-12.0, 7.5, 21.0}, e0[3] = {-11.6, 7.2, 21.3};
-    rf_euler_to_matrix(e, R);
-    rf_euler_to_matrix(e0, R0);
+    sp_euler_to_matrix(e, R);
+    sp_euler_to_matrix(e0, R0);
     double cx = 311.4, cy = 262.2, r = r_true();
     uint8_t *bgr = render(tex, R, cx, cy);
     uint8_t *bgra = malloc((size_t)FW * FH * 4), *g3 = malloc((size_t)FW * FH * 3),

@@ -57,7 +57,7 @@ static void run_version(const rf_texture *const t[NTEX], rf_work *w, uint8_t *co
             rf_image fi = {frames[k], FW, FH, 3, FW * 3};
             /* about a degree off: a gray frame takes more than one pass */
             double off[3] = {poses[k][0] + 0.9, poses[k][1] - 0.7, poses[k][2] + 0.6}, R0[3][3];
-            rf_euler_to_matrix(off, R0);
+            sp_euler_to_matrix(off, R0);
             memset(&a->o[x][k], 0, sizeof a->o[x][k]);
             assert_int_equal(rf_refine_checked(t[x], w, &fi, 327.3 + 1.5, 248.6 - 1.1,
                                                r_true() * 1.02, R0, F_PX, 1, 0.5, &a->o[x][k],
@@ -100,7 +100,7 @@ static void versions_agree(void **state)
     }
     for (int k = 0; k < NFRAMES; k++) {
         double R[3][3];
-        rf_euler_to_matrix(poses[k], R);
+        sp_euler_to_matrix(poses[k], R);
         frames[k] = render(tex, R, 327.3, 248.6);
         if (k == NFRAMES - 1) /* a mono camera: three equal channels */
             for (size_t p = 0; p < (size_t)FW * FH; p++) {
