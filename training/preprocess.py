@@ -1753,12 +1753,7 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
             raise NoSphere(_two_spheres(a, g))
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)
-    c = _final_circle(frame, dirs, a, p)
-    if cov_out is not None:
-        # its centre's covariance, from its rims on the fit's rays (the refinement weighs it
-        # against the refined centre: training/refine.py CENTRE_FUSE_PX)
-        _rim(*_refit_rays(frame, dirs, a, p), dirs, a, c, p, cov_out)
-    return c
+    return _final_circle(frame, dirs, a, p, cov_out)
 
 
 def _last_step(rays, peaks, dirs, c, p):
@@ -1769,21 +1764,25 @@ def _last_step(rays, peaks, dirs, c, p):
     return _rim(rays, peaks, dirs, c, _outermost(rays, peaks, dirs, c, p), p)
 
 
-def _final_circle(img, dirs, a, p):
+def _final_circle(img, dirs, a, p, cov=None):
     """The sphere's circle: the last step from its fit a (_last_step) and, when a is supported
     below WIDE_BELOW, from a refitted through the outermost edges of the wider band (WIDE_OUT,
     about a's support's rays); the wider band's circle when more of its rims lie near it (see
     RIM_NEAR), else the fit's. The wider band's circle is not tried when it is a itself (the
-    refit failed). Returns (cx, cy, r)."""
+    refit failed). Returns (cx, cy, r). A list `cov` gets that circle's centre's covariance from
+    its rims on the fit's rays (_rim; the refinement weighs it against the refined centre:
+    training/refine.py CENTRE_FUSE_PX)."""
     rays, peaks = _refit_rays(img, dirs, a, p)
     c, near = _last_step(rays, peaks, dirs, a, p)
-    if not a[3] < WIDE_BELOW:
-        return c
-    w = _outermost(rays, peaks, dirs, a, p, WIDE_OUT)
-    if w == (a[0], a[1], a[2]):
-        return c
-    cw, near_w = _last_step(*_refit_rays(img, dirs, w, p), dirs, w, p)
-    return cw if near_w > near else c
+    if a[3] < WIDE_BELOW:
+        w = _outermost(rays, peaks, dirs, a, p, WIDE_OUT)
+        if w != (a[0], a[1], a[2]):
+            cw, near_w = _last_step(*_refit_rays(img, dirs, w, p), dirs, w, p)
+            if near_w > near:
+                c = cw
+    if cov is not None:
+        _rim(rays, peaks, dirs, a, c, p, cov)
+    return c
 
 
 # ---- the public steps -----------------------------------------------------------------------
