@@ -1770,8 +1770,8 @@ def _final_circle(img, dirs, a, p, cov=None):
     about a's support's rays); the wider band's circle when more of its rims lie near it (see
     RIM_NEAR), else the fit's. The wider band's circle is not tried when it is a itself (the
     refit failed). Returns (cx, cy, r). A list `cov` gets that circle's centre's covariance from
-    its rims on the fit's rays (_rim; the refinement weighs it against the refined centre:
-    training/refine.py CENTRE_FUSE_PX)."""
+    its rims on the fit's rays, when there is one (_rim; the refinement weighs it against the
+    refined centre: training/refine.py CENTRE_FUSE_PX)."""
     rays, peaks = _refit_rays(img, dirs, a, p)
     c, near = _last_step(rays, peaks, dirs, a, p)
     if a[3] < WIDE_BELOW:

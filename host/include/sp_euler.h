@@ -1,10 +1,11 @@
 /* sp_euler.h -- the conventions' Euler angles as a rotation matrix.
  *
  * R = Rz(z) Ry(y) Rx(x), body to world, angles in degrees (docs/conventions.md,
- * "Pose (Euler angles)"). The one C form of that formula: libposeinfer's refinement
- * and the rig tools' error statistics both include it. Header-only because
- * the rig's unit tests build without libposeinfer; host/rig's tests check it
- * against the conventions' test vectors (tests/data/conventions_vectors.json).
+ * "Pose (Euler angles)"). The one C form of that formula: libposeinfer (the
+ * refinement's starting pose), the rig tools' error statistics and programs
+ * that read poseinfer's angles include it. Header-only because the rig's unit
+ * tests build without libposeinfer; they check it against the conventions'
+ * test vectors (tests/data/conventions_vectors.json).
  */
 #ifndef SP_EULER_H
 #define SP_EULER_H

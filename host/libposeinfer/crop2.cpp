@@ -2108,7 +2108,8 @@ static int last_step(const std::vector<double> &dirs, const pp_params *p, const 
     return rim(dirs, p, a, rays, nx, ny, nr, ocx, ocy, orad);
 }
 
-// The sphere's circle (preprocess.py _final_circle): the last step from its
+// The sphere's circle (preprocess.py _final_circle, whose covariance the caller
+// takes here from the same rays): the last step from its
 // fit a and, when a is supported below wide_below, from a refitted through
 // the outermost edges of the wider band (wide_out, about a's support's rays);
 // the wider band's circle when more of its rims lie near it, else the fit's.

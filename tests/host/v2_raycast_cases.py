@@ -97,7 +97,7 @@ def without_rim_choice(monkeypatch):
     band's circle when better supported (_wide), then the last step from it. That choice mends
     some of the frames an earlier step mends too; a test of such a step switches it off to show
     what its own step mends."""
-    def by_support(img, dirs, a, p, cov=None):
+    def by_support(img, dirs, a, p, cov=None):   # cov left empty: these tests read no covariance
         w = pp._wide(img, dirs, a, *pp._refit_rays(img, dirs, a, p), p)
         return pp._last_step(*pp._refit_rays(img, dirs, w, p), dirs, w, p)[0]
     monkeypatch.setattr(pp, "_final_circle", by_support)
