@@ -318,6 +318,9 @@ class NoSphere(ValueError):
     """The frame holds nothing that looks like the sphere (or not one sphere, whole)."""
 
 
+NO_SPHERE = "no sphere found in frame"
+
+
 def params(overrides=None, model=None):
     """Preprocessing parameters: the defaults of the named algorithm (v2 unless overrides name
     another) updated by `overrides` (dict or JSON text). A v2 set must hold every v2 key.
@@ -492,7 +495,7 @@ def _find_sphere_v1(frame, p):
         if a > best_area:
             best, best_area = c, a
     if best is None or best_area < p["min_area_frac"] * h * w:
-        raise NoSphere("no sphere found in frame")
+        raise NoSphere(NO_SPHERE)
     # the hull has the same enclosing circle as the contour, from a tenth of the points
     (cx, cy), r = cv2.minEnclosingCircle(cv2.convexHull(best))
     return cx, cy, r, bg
@@ -590,11 +593,12 @@ def _radius_bins(lo, hi, q):
     return bins
 
 
-def _coarse(frame, p, rmin, rmax):
+def _coarse(frame, p, rmin, rmax, gap_r=None):
     """Candidate circles [(cx, cy, r, votes)] in frame coordinates, strongest first, from the
     reduced image; the weaker peaks after them down to WEAK_PEAK of the best's votes (the same
     form); the scale s. Votes go to (centre, radius bin): a circle's edges agree on both, clutter's
-    do not."""
+    do not. A peak clears the centres within cand_gap times gap_r (rmin unless given; reduced
+    pixels, rounded down as the radii are) around it (see _find_sphere_v2)."""
     h, w = frame.shape[:2]
     s = max(1, min(h, w) // p["coarse_size"])
     red = _reduce(frame, s)
@@ -608,6 +612,7 @@ def _coarse(frame, p, rmin, rmax):
     hi = math.floor(rmax / s) + 1
     if hi < lo:
         return [], [], s
+    gap_lo = lo if gap_r is None else max(1, math.floor(gap_r / s))
     bins = _radius_bins(lo, hi, p["coarse_rbin"])
     nb = bins[-1] + 1
     rho = np.arange(lo, hi + 1, dtype=np.float64)
@@ -635,7 +640,7 @@ def _coarse(frame, p, rmin, rmax):
     vmax = work.max(axis=0)
     bmax = work.argmax(axis=0)
     cands, weak = [], []
-    sup = p["cand_gap"] * lo
+    sup = p["cand_gap"] * gap_lo
     yy, xx = np.indices((hs, ws))
     best = None
     start = [bins.index(b) + lo for b in range(nb)] + [hi + 1]
@@ -1549,7 +1554,7 @@ def _no_sphere_message(img, dirs, fits, p, rmin, rmax):
         sh = _limb_shading(img, dirs, c[0], c[1], c[2], p)
         if sh is not None and sh >= CUT_SHADE and _textured(img, dirs, c, p):
             return _cut_message(cut, p)
-    return "no sphere found in frame"
+    return NO_SPHERE
 
 
 def _two_spheres(a, b):
@@ -1668,7 +1673,35 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
     if camera is not None:
         _check_size(frame, camera)
     rmin, rmax = radius_range(h, w, p, camera)
-    cands, weak_peaks, s = _coarse(frame, p, rmin, rmax)
+    try:
+        return _search(frame, p, rmin, rmax, rmin, fits_out, cov_out)
+    except NoSphere as e:
+        # No sphere found within a camera file's radius range: searched again with the coarse
+        # peaks as close together as the wide search's. A peak clears the centres near it (cand_gap
+        # times the smallest radius) so that one circle does not take every candidate place; a
+        # camera file's smallest radius makes that neighbourhood about four times wider, and where
+        # the limb is shaded dark against a dark backdrop the one peak left on the sphere can lie
+        # 5-15 px off with a radius 6-16 px small. From there the fine passes settle on the
+        # shading's edge inside the rim, though the rim itself is supported above min_support.
+        # Like the refused frame's other tries, the sphere found so is kept only as a lit sphere
+        # (_lit_sphere): a clutter circle a denser search finds in a frame without a sphere is
+        # shaded flat. MEASURED. The other errors are about a sphere found, and are not searched
+        # again; when the second search finds none either, the error is the first's.
+        wide = radius_range(h, w, p)[0]
+        if not (str(e) == NO_SPHERE and wide < rmin):
+            raise
+        try:
+            return _search(frame, p, rmin, rmax, wide, None, cov_out, lit_only=True)
+        except NoSphere:
+            raise e from None
+
+
+def _search(frame, p, rmin, rmax, gap_r, fits_out, cov_out, lit_only=False):
+    """The sphere's circle within radius range [rmin, rmax] (_find_sphere_v2), the coarse peaks
+    gap_r apart (_coarse); lit_only: the sphere only as a lit sphere (_lit_sphere), else
+    NoSphere."""
+    h, w = frame.shape[:2]
+    cands, weak_peaks, s = _coarse(frame, p, rmin, rmax, gap_r)
     decisive = _decisive_support(p)
     dirs = _ray_dirs(p["rays"])
     fits = []
@@ -1753,6 +1786,8 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
             raise NoSphere(_two_spheres(a, g))
     # a weakly supported sphere tried from larger circles tangent to it on its supported arc
     a = _tangent(frame, dirs, a, p)
+    if lit_only and not _lit_sphere(frame, dirs, a, p):
+        raise NoSphere(NO_SPHERE)
     return _final_circle(frame, dirs, a, p, cov_out)
 
 

@@ -750,11 +750,11 @@ constexpr double weak_peak = 0.25;
 // to weak_peak of it) into weak. vmax is cleared there.
 template <class T>
 void peaks(T *vmax, const T *bmax, const Edges &e, const std::vector<long> &start, int nb, int hs,
-           int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out,
+           int ws, int s, int h, int w, long gap_lo, const pp_params *p, std::vector<Cand> &out,
            std::vector<Cand> &weak)
 {
     const size_t plane = (size_t)hs * ws;
-    const double sup = p->cand_gap * (double)lo;
+    const double sup = p->cand_gap * (double)gap_lo;
     long best = -1;
     // a peak whose circle would be refused as cut by the frame edge is refined but does not use
     // up one of the `candidates` places (training/preprocess.py says why); 4 x candidates at most,
@@ -797,8 +797,8 @@ template <class T>
 void vote_peaks(Acc<T> &a, const Edges &e, const std::vector<double> &ux,
                 const std::vector<double> &uy, const std::vector<double> &srs,
                 const std::vector<int32_t> &boff, const std::vector<long> &start, int nb, int hs,
-                int ws, int s, int h, int w, long lo, const pp_params *p, std::vector<Cand> &out,
-                std::vector<Cand> &weak)
+                int ws, int s, int h, int w, long gap_lo, const pp_params *p,
+                std::vector<Cand> &out, std::vector<Cand> &weak)
 {
     const size_t plane = (size_t)hs * ws, nv = srs.size();
     // the accumulator is left zero after each frame (box_max clears it)
@@ -822,13 +822,16 @@ void vote_peaks(Acc<T> &a, const Edges &e, const std::vector<double> &ux,
     box_max(acc, nb, hs, ws, a.pair.data(), a.h3.data(), a.vmax.data(), a.bmax.data());
     // the slots of the votes outside
     std::fill(acc + (size_t)nb * plane, acc + (size_t)nb * plane + nv, (T)0);
-    peaks(a.vmax.data(), a.bmax.data(), e, start, nb, hs, ws, s, h, w, lo, p, out, weak);
+    peaks(a.vmax.data(), a.bmax.data(), e, start, nb, hs, ws, s, h, w, gap_lo, p, out, weak);
 }
 
 // Candidate circles, strongest first; the weaker peaks after them into weak
-// (weak_peak); *s_out the reduction.
+// (weak_peak); *s_out the reduction. A peak clears the centres within
+// cand_gap times gap_r (reduced pixels, rounded down as the radii are)
+// around it (preprocess.py _coarse).
 std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const pp_params *p,
-                         double rmin, double rmax, int *s_out, std::vector<Cand> &weak)
+                         double rmin, double rmax, double gap_r, int *s_out,
+                         std::vector<Cand> &weak)
 {
     std::vector<Cand> out;
     const int s = std::max(1, std::min(h, w) / p->coarse_size);
@@ -850,6 +853,7 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     const long lo = std::max(1L, ifloor(rmin / s));
     const long hi = ifloor(rmax / s) + 1;
     if (hi < lo) return out;
+    const long gap_lo = std::max(1L, ifloor(gap_r / s));
     // radius bins about coarse_rbin * radius wide
     std::vector<int> bins;
     std::vector<long> start;
@@ -888,9 +892,11 @@ std::vector<Cand> coarse(const uint8_t *bgr, size_t stride, int w, int h, const 
     thread_local std::vector<double> ux, uy;
     unit_gradients(e.gx.data(), e.gy.data(), e.n, ux, uy);
     if (narrow)
-        vote_peaks(scratch.a16, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out, weak);
+        vote_peaks(scratch.a16, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, gap_lo, p, out,
+                   weak);
     else
-        vote_peaks(scratch.a32, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, lo, p, out, weak);
+        vote_peaks(scratch.a32, e, ux, uy, srs, boff, start, nb, hs, ws, s, h, w, gap_lo, p, out,
+                   weak);
     return out;
 }
 
@@ -2550,6 +2556,10 @@ void retry_rest(const Frame &f, const std::vector<double> &dirs, const pp_params
     }
 }
 
+// The error of a frame without the sphere (preprocess.py NO_SPHERE): find_sphere searches such
+// a frame again.
+constexpr char no_sphere_text[] = "no sphere found in frame";
+
 // The error when no circle is the sphere (preprocess.py _no_sphere_message):
 // the cut sphere's, of the best supported fit (first on ties) of a radius in
 // range with more than max_cut of its rim outside the frame, at least half
@@ -2577,7 +2587,7 @@ void no_sphere(const Frame &f, const std::vector<double> &dirs, const std::vecto
     if (best >= 0)
         cut_message(best_cut, p, err, errlen);
     else
-        pi_seterrn(err, errlen, "no sphere found in frame");
+        pi_seterrn(err, errlen, "%s", no_sphere_text);
 }
 
 } // namespace
@@ -2702,22 +2712,16 @@ static double expected_radius(const pp_camera *cam)
     return f * R / std::sqrt(D * D - R * R);
 }
 
-int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *ocx,
-                double *ocy, double *orad, double *cov, char *err, size_t errlen)
+// The sphere's circle within radius range [rmin, rmax], the coarse peaks
+// gap_r apart (preprocess.py _search); find_sphere's outputs and return.
+// lit_only: the sphere only as a lit sphere (lit_sphere), else no sphere.
+static int search(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double rmin,
+                  double rmax, double gap_r, bool lit_only, double *ocx, double *ocy, double *orad,
+                  double *cov, char *err, size_t errlen)
 {
-    double rmin, rmax;
-    if (p->cam.set) {
-        const double r = expected_radius(&p->cam);
-        rmin = r * (1.0 - p->r_tol);
-        rmax = r * (1.0 + p->r_tol);
-    } else {
-        const double m = (double)std::min(h, w);
-        rmin = p->r_min_frac * m;
-        rmax = p->r_max_frac * m;
-    }
     int s = 1;
     std::vector<Cand> weak_peaks;
-    const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, &s, weak_peaks);
+    const std::vector<Cand> cands = coarse(bgr, stride, w, h, p, rmin, rmax, gap_r, &s, weak_peaks);
     // the ray directions, computed again only when the count changes
     thread_local std::vector<double> dirs;
     if (dirs.size() != 2 * (size_t)p->rays) dirs = ray_dirs(p->rays);
@@ -2841,6 +2845,10 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
     // a weakly supported sphere tried from larger circles tangent to it on its supported arc
     Found sp = a;
     tangent(f, dirs, p, &sp, &bank[fits[(size_t)ia]], &bank[all.size()]);
+    if (lit_only && !lit_sphere(f, dirs, sp, p)) {
+        pi_seterrn(err, errlen, "%s", no_sphere_text);
+        return -1;
+    }
     // refitted through the outermost edges near it, then moved to the rims and through them,
     // and from the wider band's circle too when weakly supported
     final_circle(f, dirs, p, sp, bank[fits[(size_t)ia]], &bank[all.size()], ocx, ocy, orad);
@@ -2851,6 +2859,33 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         rim(dirs, p, sp, bank[fits[(size_t)ia]], *ocx, *ocy, *orad, &x, &y, &r, cov);
     }
     return 0;
+}
+
+int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double *ocx,
+                double *ocy, double *orad, double *cov, char *err, size_t errlen)
+{
+    const double m = (double)std::min(h, w);
+    double rmin = p->r_min_frac * m, rmax = p->r_max_frac * m;
+    const double wide = rmin;
+    if (p->cam.set) {
+        const double r = expected_radius(&p->cam);
+        rmin = r * (1.0 - p->r_tol);
+        rmax = r * (1.0 + p->r_tol);
+    }
+    if (search(bgr, w, h, stride, p, rmin, rmax, rmin, false, ocx, ocy, orad, cov, err, errlen) ==
+        0)
+        return 0;
+    // no sphere found within a camera file's radius range: searched again with the coarse peaks
+    // as close together as the wide search's, the sphere found so kept only as a lit sphere
+    // (preprocess.py _find_sphere_v2 says why); the error is the first search's when the second
+    // finds none either
+    if (strcmp(err, no_sphere_text) != 0 || !(wide < rmin)) return -1;
+    char first[PI_ERR_LEN];
+    snprintf(first, sizeof first, "%s", err);
+    if (search(bgr, w, h, stride, p, rmin, rmax, wide, true, ocx, ocy, orad, cov, err, errlen) == 0)
+        return 0;
+    snprintf(err, errlen, "%s", first);
+    return -1;
 }
 
 int rim_from(const uint8_t *bgr, int w, int h, size_t stride, const pp_params *p, double cx,
