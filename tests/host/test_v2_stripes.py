@@ -11,7 +11,7 @@ import pytest
 
 from training import preprocess as pp
 from v2_raycast_cases import (CAMERA, assert_off_centre, assert_same_circles_in_c, assert_within_limits,
-                              circle_error, params, render_seeded)
+                              circle_error, params, render_seeded, without_wide_gap_retry)
 
 REFUSED = [(("rig-unseen", 12, "4.117_13.458_-23.018.png"), 438)]
 FAR_OFF = [(("rig-unseen", 43, "14.777_-7.563_-12.605.png"), 427)]
@@ -31,6 +31,7 @@ def test_refused_frame_answered(frames, monkeypatch):
     p = params()
     imgs = assert_within_limits(frames[0], p)
     without_the_filter(monkeypatch)  # what this guards: refused
+    without_wide_gap_retry(monkeypatch)
     with pytest.raises(pp.NoSphere, match="no sphere found"):
         pp.find_sphere(imgs[0], p, CAMERA)
 

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from training import preprocess as pp
-from v2_raycast_cases import CAMERA, assert_same_circles_in_c, circle_error, params, render_frames
+from v2_raycast_cases import (CAMERA, assert_same_circles_in_c, circle_error, params, render_frames,
+                              without_wide_gap_retry)
 
 FORK_ON_STRIPES = ("rig-unseen", 64, "-0.952_6.841_28.879.png")
 
@@ -47,6 +48,7 @@ def test_fork_on_stripes_answered(frame, monkeypatch):
     assert ec <= 0.5 and er <= 0.5, (path.name, ec, er)
     # with the whole flank's median alone the frame is refused (what this guards)
     monkeypatch.setattr(pp, "_support", _whole_flank_support)
+    without_wide_gap_retry(monkeypatch)
     with pytest.raises(pp.NoSphere, match="no sphere found in frame"):
         _found(path)
 

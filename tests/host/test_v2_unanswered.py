@@ -23,7 +23,7 @@ import pytest
 
 from training import preprocess as pp
 from v2_raycast_cases import (CAMERA, REPO, assert_same_circles_in_c, circle_error, params, poseinfer_lines,
-                              render_frames, without_colours)
+                              render_frames, without_colours, without_wide_gap_retry)
 
 FLAT_SECOND = [(111, ("rig", 32, "-21.721_26.051_-21.863.png")),
                (113, ("rig-unseen", 42, "-18.674_-17.016_18.017.png"))]
@@ -74,6 +74,7 @@ def test_weak_fit_outside_the_rim_moves_in(frames, monkeypatch):
     # with larger circles alone the fit stays outside the rim and the frame is refused
     grow = pp._grow
     monkeypatch.setattr(pp, "_grow", lambda img, dirs, fit, p, inward=False: grow(img, dirs, fit, p))
+    without_wide_gap_retry(monkeypatch)
     with pytest.raises(pp.NoSphere, match="no sphere found in frame"):
         _found(path)
 

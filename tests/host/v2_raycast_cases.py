@@ -92,6 +92,20 @@ def without_rim_refit(monkeypatch):
     monkeypatch.setattr(pp, "_through_rims", lambda xs, ys, r, p: (0.0, 0.0, r))
 
 
+def without_wide_gap_retry(monkeypatch):
+    """No second search of a frame refused as without a sphere (_find_sphere_v2's search again with
+    the wide search's coarse gap, _search's lit_only): it reaches some of the frames that earlier
+    steps for a refused frame mend; a test of such a step switches it off to show what its own step
+    mends."""
+    search = pp._search
+
+    def first_only(frame, p, rmin, rmax, gap_r, fits_out, cov_out, lit_only=False):
+        if lit_only:
+            raise pp.NoSphere(pp.NO_SPHERE)
+        return search(frame, p, rmin, rmax, gap_r, fits_out, cov_out)
+    monkeypatch.setattr(pp, "_search", first_only)
+
+
 def without_rim_choice(monkeypatch):
     """The sphere's circle chosen as it was before its rims judged it (_final_circle): the wider
     band's circle when better supported (_wide), then the last step from it. That choice mends
