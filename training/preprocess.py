@@ -1681,7 +1681,7 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
         # times the smallest radius) so that one circle does not take every candidate place; a
         # camera file's smallest radius makes that neighbourhood about four times wider, and where
         # the limb is shaded dark against a dark backdrop the one peak left on the sphere can lie
-        # 5-15 px off with a radius 6-16 px small. From there the fine passes settle on the
+        # 4-18 px off with a radius 6-19 px small. From there the fine passes settle on the
         # shading's edge inside the rim, though the rim itself is supported above min_support.
         # Like the refused frame's other tries, the sphere found so is kept only as a lit sphere
         # (_lit_sphere): a clutter circle a denser search finds in a frame without a sphere is

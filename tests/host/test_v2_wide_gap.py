@@ -2,7 +2,7 @@
 range, with the coarse peaks as close together as the wide search's (training/preprocess.py
 _find_sphere_v2, docs/interfaces.md step 5). Three `rig-unseen` frames of the independent
 ray-caster (bench/raycast) whose limb is shaded dark against a dark backdrop: the camera's wider
-neighbourhood left one peak on the sphere, 5-15 px off with a radius 6-16 px small, and the fine
+neighbourhood left one peak on the sphere, 4-18 px off with a radius 6-19 px small, and the fine
 passes from it settled on the shading's edge inside the rim, so each was refused as "no sphere
 found" though the rim itself is supported above min_support. Searched again, each is within 0.5 px
 and 0.5 % of the truth, and the C runtime gives the same circles. Two frames without a sphere keep
