@@ -57,7 +57,9 @@ DEFAULTS_V2 = {
     # edge_min, thinned across the edge) vote along their gradient direction
     # for (centre, radius bin about coarse_rbin * radius wide); the `candidates`
     # best peaks with at least cand_frac of the best's votes go on, each one
-    # farther than cand_gap times the smallest radius from the ones before
+    # farther than cand_gap times the smallest radius from the ones before (a
+    # frame with a camera file and no sphere found: searched again with the
+    # wide search's smallest radius there, _find_sphere_v2)
     "coarse_size": 170,
     "coarse_rbin": 0.08,
     "edge_min": 24,
@@ -152,7 +154,8 @@ SECOND_IN_FRAME = 0.7
 # CUT_SHADE: a lit sphere is brightest inside), else the frame has no sphere found; with no
 # sphere found, a circle cut by the frame edge that is a sphere's (at least half its rays in the
 # frame, min_support of them supporting it, that shading) is named instead. Only the message
-# changes, never whether the frame is answered. On the development frames the shading of every cut
+# changes, and with it whether a frame with a camera file is searched again (only "no sphere
+# found" is: _find_sphere_v2). On the development frames the shading of every cut
 # sphere (the `refuse` frames of the kind `cut`, seeds 0 and 136-140: 211) is at least 1.13; a dark
 # clutter disk cut by the edge that rose above a training-renderer frame's sphere 0.36, and the
 # cut circles that pass the other tests in frames without a sphere at most 0.75. A constant of
@@ -166,7 +169,8 @@ CUT_SHADE = 1.0
 # (seeds 475-502 of the four rig families, `refuse` alone for 479-482; `two-edge` 500-502): the 930
 # spheres truly cut (`refuse` frames of the kind `cut`) show 2-17 steps (p5 3, median 4); 9 of the
 # 11 frames without a sphere named so show 0 or 1 (busy clutter has steps too: on fresh seeds
-# 503-510 it mends 2 of 5). Only the message changes, never whether a frame is answered. A constant
+# 503-510 it mends 2 of 5). Only the message changes (and with it whether the frame is searched
+# again, as above). A constant
 # of the algorithm, not a model parameter; crop2.cpp has the same (cut_texture).
 CUT_TEXTURE = 2.0
 
@@ -598,7 +602,7 @@ def _coarse(frame, p, rmin, rmax, gap_r=None):
     reduced image; the weaker peaks after them down to WEAK_PEAK of the best's votes (the same
     form); the scale s. Votes go to (centre, radius bin): a circle's edges agree on both, clutter's
     do not. A peak clears the centres within cand_gap times gap_r (rmin unless given; reduced
-    pixels, rounded down as the radii are) around it (see _find_sphere_v2)."""
+    pixels, rounded down as the radii are) around it (_find_sphere_v2 says why)."""
     h, w = frame.shape[:2]
     s = max(1, min(h, w) // p["coarse_size"])
     red = _reduce(frame, s)
@@ -667,7 +671,7 @@ def _coarse(frame, p, rmin, rmax, gap_r=None):
         if strong and (r_s is None
                        or rim_outside(Xc * s + off, Yc * s + off, r_s * s, h, w) <= p["max_cut"]):
             taken += 1
-        # suppress this peak's neighbourhood (centres closer than cand_gap times the smallest radius)
+        # suppress this peak's neighbourhood (centres closer than cand_gap times gap_r's radius)
         d2 = (xx - Xc) ** 2 + (yy - Yc) ** 2
         vmax[d2 <= sup * sup] = 0
     return cands, weak, s
@@ -983,7 +987,7 @@ def _grow(img, dirs, fit, p, inward=False):
     small, off towards the bright side), whose edges are stronger than the rim's. From the same
     centre with the radius fine_window_px and 2 fine_window_px larger, fine_passes - 1 passes
     (as after the first) each; the best supported of the fit and these (the fit on ties) is
-    kept. Inward (a fit that was no sphere at all, see _find_sphere_v2): then also from the
+    kept. Inward (a fit that was no sphere at all, see _search): then also from the
     radius fine_window_px and 2 fine_window_px smaller (after the larger ones; the first on
     ties): where the backdrop's noise or clutter makes edges all along the rays, the fit can
     settle a few pixels outside the rim on one side, farther from the rim's edges than the
@@ -1070,7 +1074,7 @@ def _rescue(img, dirs, fit, p):
 
 def _lit_sphere(img, dirs, c, p):
     """Whether a circle reached by a refused frame's tries may replace its fit (_rescue,
-    _retry_rest): supported by at least min_support and its inside shaded as a lit sphere's
+    _retry_rest), or be the sphere of the second search (_find_sphere_v2): supported by at least min_support and its inside shaded as a lit sphere's
     (_limb_shading at least LIMB_MIN)."""
     if not c[3] >= p["min_support"]:
         return False
@@ -1378,7 +1382,9 @@ def _tangent(img, dirs, fit, p):
     again from the new circle while one of them replaced it and its support is below
     (1 + min_support) / 2, at most GROW_ROUNDS tries. For the sphere, after every decision (which
     circle is the sphere, cut, two spheres), where it moves the sphere's circle, never whether the
-    frame is answered; and in _rescue, on a refused frame's best fit, where it decides that.
+    frame is answered; and in _rescue, on a refused frame's best fit, where it decides that (and
+    in the second search of a frame with a camera file, whose sphere after these tries must be a
+    lit one: _find_sphere_v2).
     Returns (cx, cy, r, support)."""
     decisive = _decisive_support(p)
     best = fit
@@ -1681,7 +1687,7 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
         # times the smallest radius) so that one circle does not take every candidate place; a
         # camera file's smallest radius makes that neighbourhood about four times wider, and where
         # the limb is shaded dark against a dark backdrop the one peak left on the sphere can lie
-        # 4-18 px off with a radius 6-19 px small. From there the fine passes settle on the
+        # 4-18 px off with a radius 6-19 px small (docs/bench/localise.md). From there the fine passes settle on the
         # shading's edge inside the rim, though the rim itself is supported above min_support.
         # Like the refused frame's other tries, the sphere found so is kept only as a lit sphere
         # (_lit_sphere): a clutter circle a denser search finds in a frame without a sphere is
@@ -1830,7 +1836,8 @@ def find_sphere(frame, p=None, camera=None, fits=None, cov=None):
     """(cx, cy, r, bg) of the sphere in a BGR uint8 frame (OpenCV pixel coordinates: pixel
     centres at integers); bg is v1's background colour, v2's fill colour. NoSphere says why
     there is none. v2 expects an undistorted frame (see undistort, crop_frame). A list `fits`
-    (v2) gets the circles the sphere was chosen from, (cx, cy, r, support) each, also when there
+    (v2) gets the circles the sphere was chosen from (the first search's, _find_sphere_v2),
+    (cx, cy, r, support) each, also when there
     is none: what scripts/sphere_check.py shows a user of a refused frame. A list `cov` (v2)
     gets the covariance of the circle's centre from its rims, (cxx, cxy, cyy) in px^2
     (_centre_covariance), when there is one."""

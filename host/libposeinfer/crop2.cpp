@@ -2484,8 +2484,8 @@ void grow_first(const Frame &f, const std::vector<double> &dirs, const pp_params
         grown(f, dirs, p, &all[0], bank, 0, all.size(), f0.support < p->min_support, decisive);
 }
 
-// Whether a circle reached by a refused frame's tries may replace its fit (rescue, retry_rest):
-// supported by at least min_support and its shading at least limb_min (preprocess.py
+// Whether a circle reached by a refused frame's tries may replace its fit (rescue, retry_rest),
+// or be the sphere of find_sphere's second search: supported by at least min_support and its shading at least limb_min (preprocess.py
 // _lit_sphere).
 bool lit_sphere(const Frame &f, const std::vector<double> &dirs, const Found &c, const pp_params *p)
 {
@@ -2872,19 +2872,21 @@ int find_sphere(const uint8_t *bgr, int w, int h, size_t stride, const pp_params
         rmin = r * (1.0 - p->r_tol);
         rmax = r * (1.0 + p->r_tol);
     }
-    if (search(bgr, w, h, stride, p, rmin, rmax, rmin, false, ocx, ocy, orad, cov, err, errlen) ==
-        0)
+    // the errors in a buffer of our own: the second search depends on the first's text
+    char why[PI_ERR_LEN];
+    if (search(bgr, w, h, stride, p, rmin, rmax, rmin, false, ocx, ocy, orad, cov, why,
+               sizeof why) == 0)
         return 0;
     // no sphere found within a camera file's radius range: searched again with the coarse peaks
     // as close together as the wide search's, the sphere found so kept only as a lit sphere
     // (preprocess.py _find_sphere_v2 says why); the error is the first search's when the second
     // finds none either
-    if (strcmp(err, no_sphere_text) != 0 || !(wide < rmin)) return -1;
-    char first[PI_ERR_LEN];
-    snprintf(first, sizeof first, "%s", err);
-    if (search(bgr, w, h, stride, p, rmin, rmax, wide, true, ocx, ocy, orad, cov, err, errlen) == 0)
+    char again[PI_ERR_LEN];
+    if (strcmp(why, no_sphere_text) == 0 && wide < rmin &&
+        search(bgr, w, h, stride, p, rmin, rmax, wide, true, ocx, ocy, orad, cov, again,
+               sizeof again) == 0)
         return 0;
-    snprintf(err, errlen, "%s", first);
+    pi_seterrn(err, errlen, "%s", why);
     return -1;
 }
 

@@ -11,9 +11,9 @@ limits. When the best fit stays below min_support, every other fit is tried the 
 (_retry_rest): frame 67 of the `rig-unseen` family, seed 432 (a dark limb over a black backdrop,
 the sphere's own fit a few rays below an inner circle's), was refused so and is now answered within
 the limits. A `refuse` frame without a sphere (frame 16 of seed 413, clutter) whose best fit the tangent
-circles take to min_support on a clutter disk stays refused by the shading test. The second search
-with the wide gap (_find_sphere_v2) reaches that disk at min_support, lit, and answers it; the
-refinement flags the answer ("a wrong sphere"). The C runtime gives the same circles as Python."""
+circles take to min_support on a clutter disk is refused by the shading test there. The second
+search with the wide gap (_find_sphere_v2) reaches that disk at min_support, lit, and answers it;
+the refinement flags the answer ("a wrong sphere"). The C runtime gives the same circles as Python."""
 import cv2
 import pytest
 
@@ -68,7 +68,7 @@ def test_other_fits_retried(frames, monkeypatch):
         pp.find_sphere(imgs[0], p, CAMERA)
 
 
-def test_no_sphere_stays_refused(frames, monkeypatch):
+def test_no_sphere_refused_by_the_shading_test(frames, monkeypatch):
     """The first search refuses it; the second, with the wide gap, reaches the clutter disk at
     min_support and shaded as a lit sphere, and answers it (the refinement flags that answer:
     test_same_circles_in_c_and_the_disk_flagged)."""
@@ -84,8 +84,8 @@ def test_no_sphere_stays_refused(frames, monkeypatch):
 
 
 def test_same_circles_in_c_and_the_disk_flagged(frames, tmp_path, poseinfer, timeout_scale):
-    assert_same_circles_in_c(poseinfer, [path for path, _ in frames[0] + frames[2] + frames[3]], tmp_path,
-                             timeout_scale)
+    assert_same_circles_in_c(poseinfer, [path for path, _ in frames[0] + frames[2] + frames[3] + frames[1]],
+                             tmp_path, timeout_scale)
     # the clutter disk the second search answers: flagged, not a confident pose
     (line,) = poseinfer_lines(poseinfer, [frames[1][0][0]], tmp_path, (), timeout_scale)
     assert line["confident"] is False and "wrong sphere" in line["note"], line

@@ -9,7 +9,10 @@ and 0.5 % of the truth, and the C runtime gives the same circles. Two frames wit
 the first search's error: one where the second search finds nothing, and one where it finds a
 clutter circle shaded flat, which, like the refused frame's other tries, is kept only as a lit
 sphere (_lit_sphere)."""
+import re
+
 import cv2
+import numpy as np
 import pytest
 
 from sim.camera import REFERENCE as CAMERA
@@ -68,3 +71,33 @@ def test_same_circles_in_c(frames, tmp_path, poseinfer, timeout_scale):
                             timeout_scale, rc=1)
     for line in lines:
         assert line.get("error", "").endswith(pp.NO_SPHERE), line
+
+
+def test_only_no_sphere_is_searched_again(monkeypatch):
+    """Only the first search's "no sphere found" is searched again, and when the second search is
+    refused too the error is the first's (no rays cast: _search stubbed)."""
+    p = params()
+    img = np.zeros((CAMERA["height"], CAMERA["width"], 3), np.uint8)
+    calls = []
+
+    def search(frame, p_, rmin, rmax, gap_r, fits_out, cov_out, lit_only=False):
+        calls.append(lit_only)
+        raise pp.NoSphere(errors[len(calls) - 1])
+    monkeypatch.setattr(pp, "_search", search)
+    for first in ("two spheres in frame (stub)", "sphere cut by the frame edge (stub)"):
+        calls.clear()
+        errors = [first]
+        with pytest.raises(pp.NoSphere, match=r"^" + re.escape(first) + "$"):
+            pp.find_sphere(img, p, CAMERA)
+        assert calls == [False]
+    calls.clear()
+    errors = [pp.NO_SPHERE, "two spheres in frame (stub)"]
+    with pytest.raises(pp.NoSphere, match=f"^{pp.NO_SPHERE}$"):
+        pp.find_sphere(img, p, CAMERA)
+    assert calls == [False, True]
+    # without a camera file the search is the wide one already: not searched again
+    calls.clear()
+    errors = [pp.NO_SPHERE]
+    with pytest.raises(pp.NoSphere, match=f"^{pp.NO_SPHERE}$"):
+        pp.find_sphere(img, p)
+    assert calls == [False]

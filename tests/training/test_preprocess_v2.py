@@ -136,7 +136,7 @@ def test_weak_fit_retries_are_capped(monkeypatch):
         tries.append(fit)
         return (fit[0], fit[1], fit[2] + 1.0, fit[3] + 0.01)
 
-    monkeypatch.setattr(pp, "_coarse", lambda frame, p, rmin, rmax: ([(320.0, 256.0, 100.0, 9)], [], 3))
+    monkeypatch.setattr(pp, "_coarse", lambda frame, p, rmin, rmax, gap_r=None: ([(320.0, 256.0, 100.0, 9)], [], 3))
     monkeypatch.setattr(pp, "_fine", lambda img, dirs, cand, s, p: (320.0, 256.0, 100.0, 0.1))
     monkeypatch.setattr(pp, "_grow", grow)
     with pytest.raises(pp.NoSphere, match="no sphere found"):
