@@ -155,11 +155,11 @@ SECOND_IN_FRAME = 0.7
 # sphere found, a circle cut by the frame edge that is a sphere's (at least half its rays in the
 # frame, min_support of them supporting it, that shading) is named instead. Only the message
 # changes, and with it whether a frame with a camera file is searched again (only "no sphere
-# found" is: _find_sphere_v2). On the development frames the shading of every cut
-# sphere (the `refuse` frames of the kind `cut`, seeds 0 and 136-140: 211) is at least 1.13; a dark
-# clutter disk cut by the edge that rose above a training-renderer frame's sphere 0.36, and the
-# cut circles that pass the other tests in frames without a sphere at most 0.75. A constant of
-# the algorithm, not a model parameter; crop2.cpp has the same (cut_shade).
+# found" is: _find_sphere_v2). On the development frames the shading of every cut sphere (the
+# `refuse` frames of the kind `cut`, seeds 0 and 136-140: 211) is at least 1.13; a dark clutter
+# disk cut by the edge that rose above a training-renderer frame's sphere 0.36, and the cut
+# circles that pass the other tests in frames without a sphere at most 0.75. A constant of the
+# algorithm, not a model parameter; crop2.cpp has the same (cut_shade).
 CUT_SHADE = 1.0
 
 # ... and only when it shows the printed texture's bands: `_texture_steps` (the median count of colour
@@ -170,8 +170,8 @@ CUT_SHADE = 1.0
 # spheres truly cut (`refuse` frames of the kind `cut`) show 2-17 steps (p5 3, median 4); 9 of the
 # 11 frames without a sphere named so show 0 or 1 (busy clutter has steps too: on fresh seeds
 # 503-510 it mends 2 of 5). Only the message changes (and with it whether the frame is searched
-# again, as above). A constant
-# of the algorithm, not a model parameter; crop2.cpp has the same (cut_texture).
+# again, as above). A constant of the algorithm, not a model parameter; crop2.cpp has the same
+# (cut_texture).
 CUT_TEXTURE = 2.0
 
 # A circle of the sphere's size beside it, supported by at least SECOND_RETRY of the rays but
@@ -671,7 +671,7 @@ def _coarse(frame, p, rmin, rmax, gap_r=None):
         if strong and (r_s is None
                        or rim_outside(Xc * s + off, Yc * s + off, r_s * s, h, w) <= p["max_cut"]):
             taken += 1
-        # suppress this peak's neighbourhood (centres closer than cand_gap times gap_r's radius)
+        # suppress this peak's neighbourhood (centres closer than cand_gap times gap_lo)
         d2 = (xx - Xc) ** 2 + (yy - Yc) ** 2
         vmax[d2 <= sup * sup] = 0
     return cands, weak, s
@@ -1074,8 +1074,8 @@ def _rescue(img, dirs, fit, p):
 
 def _lit_sphere(img, dirs, c, p):
     """Whether a circle reached by a refused frame's tries may replace its fit (_rescue,
-    _retry_rest), or be the sphere of the second search (_find_sphere_v2): supported by at least min_support and its inside shaded as a lit sphere's
-    (_limb_shading at least LIMB_MIN)."""
+    _retry_rest), or be the sphere of the second search (_find_sphere_v2): supported by at least
+    min_support and its inside shaded as a lit sphere's (_limb_shading at least LIMB_MIN)."""
     if not c[3] >= p["min_support"]:
         return False
     s = _limb_shading(img, dirs, c[0], c[1], c[2], p)
@@ -1687,8 +1687,9 @@ def _find_sphere_v2(frame, p, camera=None, fits_out=None, cov_out=None):
         # times the smallest radius) so that one circle does not take every candidate place; a
         # camera file's smallest radius makes that neighbourhood about four times wider, and where
         # the limb is shaded dark against a dark backdrop the one peak left on the sphere can lie
-        # 4-18 px off with a radius 6-19 px small (docs/bench/localise.md). From there the fine passes settle on the
-        # shading's edge inside the rim, though the rim itself is supported above min_support.
+        # 4-18 px off with a radius 6-19 px small (docs/bench/localise.md). From there the fine
+        # passes settle on the shading's edge inside the rim, though the rim itself is supported
+        # above min_support.
         # Like the refused frame's other tries, the sphere found so is kept only as a lit sphere
         # (_lit_sphere): a clutter circle a denser search finds in a frame without a sphere is
         # mostly shaded flat. Measured (docs/bench/localise.md) on seeds 475-478 and 483-522: 5 of
